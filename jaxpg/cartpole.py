@@ -1,0 +1,193 @@
+"""CartPole as pure, jittable JAX functions, equal to Gymnasium's classic_control `CartPoleEnv`.
+
+Operation order follows Gymnasium's `step` exactly, so that in float64 the two agree to rounding.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+INTEGRATORS = ("euler", "semi-implicit")
+
+
+@struct.dataclass
+class CartPoleParams:
+    """Physics and episode settings; a pytree, so a sweep can vmap over any number in it.
+
+    `total_mass` and `polemass_length` are derived from the masses and the length, never stored, so
+    that vmapping over `masspole` changes them too. The integrator and the reward scheme change the
+    program, so they are static fields.
+    """
+
+    gravity: float = 9.8
+    masscart: float = 1.0
+    masspole: float = 0.1
+    length: float = 0.5  # half the pole's length
+    force_mag: float = 10.0
+    tau: float = 0.02  # seconds between state updates
+    x_threshold: float = 2.4
+    theta_threshold_radians: float = 12 * 2 * math.pi / 360
+    reset_low: float = -0.05
+    reset_high: float = 0.05
+    max_steps: int = 500  # Gymnasium's TimeLimit: truncated once this many steps were taken
+    integrator: str = struct.field(pytree_node=False, default="euler")
+    sutton_barto_reward: bool = struct.field(pytree_node=False, default=False)
+
+    @property
+    def total_mass(self):
+        return self.masspole + self.masscart
+
+    @property
+    def polemass_length(self):
+        return self.masspole * self.length
+
+
+V1 = CartPoleParams(max_steps=500)
+V0 = CartPoleParams(max_steps=200)
+PRESETS = {"CartPole-v1": V1, "CartPole-v0": V0}
+REWARD_THRESHOLDS = {"CartPole-v1": 475.0, "CartPole-v0": 195.0}
+
+
+@struct.dataclass
+class CartPoleState:
+    """The four physical values and the number of steps taken in the episode."""
+
+    x: jax.Array
+    x_dot: jax.Array
+    theta: jax.Array
+    theta_dot: jax.Array
+    time: jax.Array
+
+    @classmethod
+    def from_array(cls, values, time=0):
+        """Builds a state from `[..., 4]` values (x, x_dot, theta, theta_dot), e.g. Gymnasium's state."""
+        values = jnp.asarray(values)
+        if values.ndim == 0 or values.shape[-1] != 4:
+            raise ValueError(
+                f"state: expected an array of shape [..., 4] (x, x_dot, theta, theta_dot), "
+                f"got shape {tuple(values.shape)}"
+            )
+        if not jnp.issubdtype(values.dtype, jnp.floating):
+            values = values.astype(jnp.result_type(float))
+        time = jnp.broadcast_to(jnp.asarray(time, jnp.int32), values.shape[:-1])
+        return cls(values[..., 0], values[..., 1], values[..., 2], values[..., 3], time)
+
+    def to_array(self):
+        """The physical values as `[..., 4]`."""
+        return jnp.stack([self.x, self.x_dot, self.theta, self.theta_dot], axis=-1)
+
+
+def make_params(env="CartPole-v1", **overrides):
+    """A preset by name (`CartPole-v1` or `CartPole-v0`), with any field overridden, validated."""
+    if env not in PRESETS:
+        raise ValueError(f"env: unknown preset {env!r}; allowed: {', '.join(PRESETS)}")
+    unknown = set(overrides) - set(CartPoleParams.__dataclass_fields__)
+    if unknown:
+        raise ValueError(f"env_params: unknown field(s) {', '.join(sorted(unknown))}")
+    env_params = PRESETS[env].replace(**overrides)
+    check_params(env_params)
+    return env_params
+
+
+_POSITIVE = ("masscart", "masspole", "length", "force_mag", "tau", "x_threshold",
+             "theta_threshold_radians", "max_steps")
+
+
+def check_params(env_params):
+    """Raises a ValueError naming the first invalid field; values under a trace are skipped."""
+    if not isinstance(env_params, CartPoleParams):
+        raise ValueError(f"env_params: expected a CartPoleParams, got {type(env_params).__name__}")
+    if env_params.integrator not in INTEGRATORS:
+        raise ValueError(
+            f"integrator: must be one of {', '.join(INTEGRATORS)}, got {env_params.integrator!r}"
+        )
+    for name in _POSITIVE:
+        value = _concrete(getattr(env_params, name))
+        if value is not None and not np.all(value > 0):
+            raise ValueError(f"{name}: must be positive, got {value}")
+    low, high = _concrete(env_params.reset_low), _concrete(env_params.reset_high)
+    if low is not None and high is not None and not np.all(low < high):
+        raise ValueError(f"reset_low: must be below reset_high, got {low} >= {high}")
+
+
+def _concrete(value):
+    """The value as numpy, or None when it is traced (inside jit, vmap or grad)."""
+    if isinstance(value, jax.core.Tracer):
+        return None
+    return np.asarray(value)
+
+
+def observe(state):
+    """The observation `[..., 4]` of a state, in the state's float dtype."""
+    return state.to_array()
+
+
+def reset(key, env_params):
+    """Samples an initial state, each value uniform in [reset_low, reset_high).
+
+    Returns:
+      (obs `[4]`, state)
+    """
+    check_params(env_params)
+    values = jax.random.uniform(
+        key, (4,), minval=env_params.reset_low, maxval=env_params.reset_high
+    )
+    state = CartPoleState.from_array(values)
+    return observe(state), state
+
+
+def step(state, action, env_params):
+    """Advances one step of `tau` seconds; action 1 pushes right, 0 pushes left.
+
+    Returns:
+      (obs, state, reward, terminated, truncated). A fall on the step that reaches `max_steps` is
+      both terminated and truncated. The reward is 1 on every step, including the terminating one;
+      with `sutton_barto_reward`, 0 per step and -1 on termination.
+    """
+    check_params(env_params)
+    _check_action(action)
+    p = env_params
+    x, x_dot, theta, theta_dot = state.x, state.x_dot, state.theta, state.theta_dot
+    force = jnp.where(action == 1, p.force_mag, -p.force_mag)
+    costheta = jnp.cos(theta)
+    sintheta = jnp.sin(theta)
+    temp = (force + p.polemass_length * jnp.square(theta_dot) * sintheta) / p.total_mass
+    thetaacc = (p.gravity * sintheta - costheta * temp) / (
+        p.length * (4.0 / 3.0 - p.masspole * jnp.square(costheta) / p.total_mass)
+    )
+    xacc = temp - p.polemass_length * thetaacc * costheta / p.total_mass
+    if p.integrator == "euler":
+        x = x + p.tau * x_dot
+        x_dot = x_dot + p.tau * xacc
+        theta = theta + p.tau * theta_dot
+        theta_dot = theta_dot + p.tau * thetaacc
+    else:
+        x_dot = x_dot + p.tau * xacc
+        x = x + p.tau * x_dot
+        theta_dot = theta_dot + p.tau * thetaacc
+        theta = theta + p.tau * theta_dot
+    time = state.time + 1
+    state = CartPoleState(x.astype(state.x.dtype), x_dot.astype(state.x.dtype),
+                          theta.astype(state.x.dtype), theta_dot.astype(state.x.dtype), time)
+    terminated = (
+        (x < -p.x_threshold)
+        | (x > p.x_threshold)
+        | (theta < -p.theta_threshold_radians)
+        | (theta > p.theta_threshold_radians)
+    )
+    truncated = time >= p.max_steps
+    if p.sutton_barto_reward:
+        reward = -terminated.astype(state.x.dtype)
+    else:
+        reward = jnp.ones_like(state.x)
+    return observe(state), state, reward, terminated, truncated
+
+
+def _check_action(action):
+    """In eager use, rejects any action other than 0 or 1."""
+    value = _concrete(action)
+    if value is not None and not np.all((value == 0) | (value == 1)):
+        raise ValueError(f"action: must be 0 (push left) or 1 (push right), got {value}")

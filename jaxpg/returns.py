@@ -1,0 +1,63 @@
+"""Discounted returns: the book's list interface and the masked, batched `[T, E]` versions."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def discount_masked(rewards, alive, discount_rate):
+    """Discounted returns of `[T, E]` rewards; 0 on the steps that are not alive.
+
+    G_t = r_t + discount_rate * G_{t+1}, computed with a reverse scan over time.
+    """
+    rewards = jnp.where(alive, rewards, 0.0)
+
+    def accumulate(future, reward):
+        ret = reward + discount_rate * future
+        return ret, ret
+
+    _, returns = jax.lax.scan(accumulate, jnp.zeros_like(rewards[0]), rewards, reverse=True)
+    return jnp.where(alive, returns, 0.0)
+
+
+def normalize_masked(values, alive):
+    """`(values - mean) / std` over the alive entries (population std); 0 elsewhere.
+
+    When the std is 0 (every alive value equal) the values are only centred, so nothing divides by 0.
+    """
+    count = jnp.maximum(alive.sum(), 1)
+    mean = jnp.where(alive, values, 0.0).sum() / count
+    centred = jnp.where(alive, values - mean, 0.0)
+    std = jnp.sqrt(jnp.square(centred).sum() / count)
+    return centred / jnp.where(std > 0, std, 1.0)
+
+
+def discount_and_normalize_masked(rewards, alive, discount_rate):
+    """Discounted returns of `[T, E]` rewards, normalised over all alive steps of all episodes."""
+    return normalize_masked(discount_masked(rewards, alive, discount_rate), alive)
+
+
+def _pad(all_rewards):
+    """Episodes of different lengths as `[T, E]` rewards and alive mask."""
+    lengths = [len(r) for r in all_rewards]
+    rewards = np.zeros((max(lengths, default=0), len(all_rewards)))
+    for e, episode in enumerate(all_rewards):
+        rewards[: len(episode), e] = episode
+    alive = np.arange(rewards.shape[0])[:, None] < np.asarray(lengths)[None, :]
+    return jnp.asarray(rewards, dtype=float), jnp.asarray(alive), lengths
+
+
+def discount_rewards(rewards, discount_rate):
+    """The book's `discount_rewards`: `discount_rewards([10, 0, -50], 0.8)` is `[-22, -40, -50]`."""
+    padded, alive, _ = _pad([rewards])
+    return discount_masked(padded, alive, discount_rate)[:, 0]
+
+
+def discount_and_normalize_rewards(all_rewards, discount_rate):
+    """The book's `discount_and_normalize_rewards`: a list of episodes in, a list of arrays out.
+
+    The mean and std are taken over the discounted returns of every step of every episode.
+    """
+    padded, alive, lengths = _pad(all_rewards)
+    normalized = discount_and_normalize_masked(padded, alive, discount_rate)
+    return [normalized[:n, e] for e, n in enumerate(lengths)]
