@@ -145,6 +145,9 @@ def reinforce_loss(policy_params, network, transitions, advantages):
     logits = network.apply(policy_params, transitions.obs)
     log_probs = policies.log_prob(logits, transitions.action)
     weighted = jnp.where(transitions.alive, advantages * log_probs, 0.0)
+    # Summed apart from the log-probabilities it is fused with otherwise: the fused sum rounds
+    # differently with the number of runs vmapped, and a run must not depend on its neighbours.
+    weighted = jax.lax.optimization_barrier(weighted)
     return -weighted.sum() / jnp.maximum(transitions.alive.sum(), 1)
 
 
@@ -191,7 +194,7 @@ def iterate(config, train_state, hyperparams):
         max_return=episodes.returns.max(),
         mean_length=episodes.lengths.mean(),
         loss=loss,
-        grad_norm=optax.global_norm(grads),
+        grad_norm=optax.global_norm(jax.lax.optimization_barrier(grads)),
     )
     return TrainState(policy_params, opt_state, key), metrics
 

@@ -1,0 +1,305 @@
+"""The `jaxpg` command: train | sweep | evaluate | render | conformance | reproduce.
+
+Every argument is checked before anything compiles; a bad one ends the command with status 2 and
+one line on stderr, never a traceback.
+"""
+
+import argparse
+import os
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+PROG = "jaxpg"
+BOOK_BASIC_POLICY = (41.698, 8.389445512070509, 24.0, 63.0)  # mean, std, min, max, as printed
+BOOK_DISCOUNT = [-22.0, -40.0, -50.0]
+BOOK_NORMALIZED = [[-0.28435071, -0.86597718, -1.18910299], [1.26665318, 1.0727777]]
+BOOK_LAST_ITERATION = 199.6  # "Iteration: 150/150, mean rewards: 199.6"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+# --- Argument types: each raises a one-line error naming what is allowed ---------------------
+
+
+def _int_list(text):
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}")
+
+
+def _float_list(text):
+    try:
+        return [float(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}")
+
+
+def _add_training_args(parser):
+    from jaxpg.reinforce import TrainConfig
+
+    d = TrainConfig()
+    parser.add_argument("--iterations", type=int, default=d.iterations, help="updates (default %(default)s)")
+    parser.add_argument("--episodes", type=int, default=d.episodes, help="episodes per update (default %(default)s)")
+    parser.add_argument("--max-steps", type=int, default=d.max_steps, help="steps per episode (default %(default)s)")
+    parser.add_argument("--optimizer", default=d.optimizer, help="an optax optimizer (default %(default)s)")
+    parser.add_argument("--hidden", type=_int_list, default=d.hidden, help="hidden layer sizes, e.g. 5 or 32,32 (default 5)")
+    parser.add_argument("--activation", default=d.activation, help="hidden activation (default %(default)s)")
+    parser.add_argument("--env", default=d.env, help="CartPole-v1 or CartPole-v0 (default %(default)s)")
+    parser.add_argument("--solved-return", type=float, default=d.solved_return, help="mean return that counts as solved (default %(default)s)")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+
+
+def _config(args, **hyperparams):
+    from jaxpg.reinforce import TrainConfig
+
+    return TrainConfig(
+        iterations=args.iterations,
+        episodes=args.episodes,
+        max_steps=args.max_steps,
+        hidden=args.hidden,
+        activation=args.activation,
+        optimizer=args.optimizer,
+        env=args.env,
+        solved_return=args.solved_return,
+        **hyperparams,
+    )
+
+
+def _enable_compilation_cache(disabled):
+    """Keeps compiled programs in the user's cache directory, so the next process skips compiling."""
+    if disabled:
+        return
+    import jax
+
+    cache_home = pathlib.Path(os.environ.get("XDG_CACHE_HOME", pathlib.Path.home() / ".cache"))
+    jax.config.update("jax_compilation_cache_dir", str(cache_home / "jaxpg" / "xla"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def _load_policy(spec):
+    """`basic`, or a directory or file written by `jaxpg train`: (policy, description)."""
+    from jaxpg import checkpoint, policies
+
+    if spec == "basic":
+        return policies.basic_policy, "the basic angle policy"
+    path = pathlib.Path(spec)
+    if not path.exists():
+        raise ValueError(f"policy: expected 'basic' or a checkpoint written by jaxpg train, {spec} does not exist")
+    loaded = checkpoint.load(path)
+    return policies.network_policy(loaded.config.network, loaded.policy_params), f"the policy in {spec}"
+
+
+# --- Commands --------------------------------------------------------------------------------
+
+
+def cmd_train(args):
+    from jaxpg import checkpoint, plots, results
+    from jaxpg.reinforce import train
+
+    config = _config(args, learning_rate=args.lr, discount=args.discount)
+    out = results.check_out_dir(args.out)
+    _check_seed(args.seed)
+    _enable_compilation_cache(args.no_cache)
+    start = time.perf_counter()
+    result = train(config, seed=args.seed, show_progress=not args.quiet)
+    seconds = time.perf_counter() - start
+    metrics = {name: np.asarray(v) for name, v in result.metrics._asdict().items()}
+    final = float(metrics["mean_return"][-10:].mean())
+    with results.staged(out) as stage:
+        checkpoint.save(stage / checkpoint.FILENAME, result.policy_params, config, result.metrics)
+        summary = {"seed": args.seed, "config": checkpoint.config_to_dict(config),
+                   "last_10_mean_return": final, "seconds": seconds, "metrics": metrics}
+        results.write_json(stage / "metrics.json", summary)
+        results.write_csv(stage / "metrics.csv", {"iteration": np.arange(config.iterations), **metrics})
+        plots.learning_curve(result.metrics, stage / "learning_curve.png",
+                             title=f"REINFORCE on {_env_name(config)}, seed {args.seed}")
+    print(f"mean return over the last 10 iterations: {final:.1f} "
+          f"(final iteration {metrics['mean_return'][-1]:.1f}); {seconds:.1f} s")
+    print(f"wrote {out}/: {checkpoint.FILENAME}, metrics.json, metrics.csv, learning_curve.png")
+
+
+def cmd_sweep(args):
+    from jaxpg import checkpoint, plots, results, sweep
+
+    if args.seeds < 1:
+        raise ValueError(f"seeds: must be a positive integer, got {args.seeds}")
+    config = _config(args, learning_rate=args.lr[0], discount=args.discount[0])
+    grid = {"learning_rate": args.lr, "discount": args.discount}
+    sweep.expand_grid(config, grid)  # validates before compiling
+    out = results.check_out_dir(args.out)
+    _enable_compilation_cache(args.no_cache)
+    start = time.perf_counter()
+    swept = sweep.sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet)
+    seconds = time.perf_counter() - start
+    s = swept.summary
+    labels = [f"lr={g['learning_rate']:g}, discount={g['discount']:g}" for g in swept.grid]
+    with results.staged(out) as stage:
+        np.savez_compressed(stage / "metrics.npz", seeds=swept.seeds,
+                            learning_rate=[g["learning_rate"] for g in swept.grid],
+                            discount=[g["discount"] for g in swept.grid],
+                            **swept.metrics._asdict())
+        num_settings, num_seeds = s.final_return.shape
+        results.write_csv(stage / "runs.csv", {
+            "learning_rate": np.repeat([g["learning_rate"] for g in swept.grid], num_seeds),
+            "discount": np.repeat([g["discount"] for g in swept.grid], num_seeds),
+            "seed": np.tile(swept.seeds, num_settings),
+            "last_10_mean_return": s.final_return.ravel(),
+            "first_solved_iteration": s.first_solved.ravel(),
+        })
+        results.write_json(stage / "summary.json", {
+            "config": checkpoint.config_to_dict(config), "seeds": args.seeds, "seconds": seconds,
+            "grid": swept.grid, "fraction_solved": s.fraction_solved,
+            "median_last_10_mean_return": np.median(s.final_return, axis=1),
+            "median": s.median, "q25": s.q25, "q75": s.q75, "solved_by": s.solved_by,
+        })
+        plots.sweep_curves(s.median, s.q25, s.q75, s.solved_by, labels, config.solved_return,
+                           stage / "sweep.png")
+    for label, solved, final in zip(labels, s.fraction_solved, np.median(s.final_return, axis=1)):
+        print(f"{label}: median last-10 mean return {final:.1f}, solved {solved:.0%} of {args.seeds} seeds")
+    print(f"{s.final_return.size} runs in {seconds:.1f} s; wrote {out}/: metrics.npz, runs.csv, summary.json, sweep.png")
+
+
+def cmd_evaluate(args):
+    from jaxpg.evaluate import evaluate
+
+    policy, description = _load_policy(args.policy)
+    result = evaluate(policy, episodes=args.episodes, max_steps=args.max_steps, env=args.env,
+                      seed=args.seed, backend=args.backend)
+    print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps "
+          f"in {args.backend} {args.env}:")
+    print(f"mean {result.mean:.3f}  std {result.std:.3f}  min {result.min:g}  max {result.max:g}")
+
+
+def cmd_render(args):
+    from jaxpg import cartpole, render
+
+    policy, description = _load_policy(args.policy)
+    _check_seed(args.seed)
+    env_params = cartpole.make_params(args.env)
+    frames = render.render_episode(policy, seed=args.seed, env_params=env_params, max_steps=args.max_steps)
+    render.save_animation(frames, args.out)
+    print(f"wrote {args.out}: {description}, {len(frames) - 1} steps")
+
+
+def cmd_conformance(args):
+    from jaxpg import conformance
+
+    report = conformance.run(episodes=args.episodes, seed=args.seed)
+    print(report.format())
+    return 0 if report.ok else 1
+
+
+def cmd_reproduce(args):
+    from jaxpg import evaluate, policies, returns
+    from jaxpg.reinforce import TrainConfig, train
+
+    _enable_compilation_cache(args.no_cache)
+    print("Basic policy, 500 episodes of 200 steps from Gymnasium's reset(seed=episode):")
+    states = evaluate.gymnasium_reset_states(500)
+    stats = evaluate.evaluate(policies.basic_policy, 500, 200, init_states=states)
+    _beside("mean, std, min, max", (stats.mean, stats.std, stats.min, stats.max), BOOK_BASIC_POLICY)
+    print("Discounting:")
+    _beside("discount_rewards([10, 0, -50], 0.8)", returns.discount_rewards([10, 0, -50], 0.8), BOOK_DISCOUNT)
+    normalized = returns.discount_and_normalize_rewards([[10, 0, -50], [10, 20]], 0.8)
+    _beside("discount_and_normalize_rewards([[10, 0, -50], [10, 20]], 0.8)",
+            [np.round(np.asarray(n), 8).tolist() for n in normalized], BOOK_NORMALIZED)
+    print(f"REINFORCE with the book's settings, seed {args.seed}:")
+    result = train(TrainConfig(), seed=args.seed, show_progress=not args.quiet)
+    mean_return = np.asarray(result.metrics.mean_return)
+    _beside("mean rewards at the last iteration", round(float(mean_return[-1]), 1), BOOK_LAST_ITERATION)
+    print(f"  mean over the last 10 iterations: {mean_return[-10:].mean():.1f}")
+
+
+def _beside(what, ours, book):
+    print(f"  {what}:\n    jaxpg: {_fmt(ours)}\n    book:  {_fmt(book)}")
+
+
+def _fmt(value):
+    return str(np.asarray(value).tolist() if hasattr(value, "shape") else value)
+
+
+def _check_seed(seed):
+    if not 0 <= seed < 2**32:
+        raise ValueError(f"seed: must be an integer in [0, 2**32), got {seed}")
+
+
+def _env_name(config):
+    return config.env if isinstance(config.env, str) else "CartPole (custom)"
+
+
+# --- Parser ----------------------------------------------------------------------------------
+
+
+def build_parser():
+    parser = _Parser(prog=PROG, description="Policy gradients on CartPole, exact and fast, in JAX.")
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = commands.add_parser("train", help="train one policy with REINFORCE")
+    _add_training_args(p)
+    p.add_argument("--seed", type=int, default=42, help="(default %(default)s)")
+    p.add_argument("--lr", type=float, default=0.01, help="learning rate (default %(default)s)")
+    p.add_argument("--discount", type=float, default=0.95, help="(default %(default)s)")
+    p.add_argument("--out", default="runs/train", help="output directory (default %(default)s)")
+    p.set_defaults(handler=cmd_train)
+
+    p = commands.add_parser("sweep", help="train many seeds and hyperparameters at once")
+    _add_training_args(p)
+    p.add_argument("--seeds", type=int, default=64, help="seeds 0..N-1 (default %(default)s)")
+    p.add_argument("--lr", type=_float_list, default=[0.01], help="learning rates, e.g. 0.003,0.01")
+    p.add_argument("--discount", type=_float_list, default=[0.95], help="discounts, e.g. 0.9,0.95")
+    p.add_argument("--out", default="runs/sweep", help="output directory (default %(default)s)")
+    p.set_defaults(handler=cmd_sweep)
+
+    p = commands.add_parser("evaluate", help="evaluate a policy in jaxpg or in Gymnasium")
+    p.add_argument("--policy", default="basic", help="basic, or a directory written by jaxpg train")
+    p.add_argument("--episodes", type=int, default=500)
+    p.add_argument("--max-steps", type=int, default=200)
+    p.add_argument("--backend", default="jaxpg", help="jaxpg or gymnasium (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--env", default="CartPole-v1", help="CartPole-v1 or CartPole-v0")
+    p.set_defaults(handler=cmd_evaluate)
+
+    p = commands.add_parser("render", help="draw an episode as a GIF (or MP4)")
+    p.add_argument("--policy", default="basic", help="basic, or a directory written by jaxpg train")
+    p.add_argument("--out", default="cartpole.gif", help="a .gif or .mp4 path (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-steps", type=int, default=200)
+    p.add_argument("--env", default="CartPole-v1", help="CartPole-v1 or CartPole-v0")
+    p.set_defaults(handler=cmd_render)
+
+    p = commands.add_parser("conformance", help="compare jaxpg with Gymnasium's CartPole step by step")
+    p.add_argument("--episodes", type=int, default=100, help="episodes per variant (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(handler=cmd_conformance)
+
+    p = commands.add_parser("reproduce", help="the book's numbers beside jaxpg's")
+    p.add_argument("--seed", type=int, default=42)
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    p.set_defaults(handler=cmd_reproduce)
+    return parser
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        return args.handler(args) or 0
+    except ValueError as error:
+        print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
