@@ -1,17 +1,27 @@
-"""jaxpg: policy-gradient reinforcement learning on CartPole, exact and fast, in JAX."""
+"""jaxpg: policy-gradient reinforcement learning on CartPole, exact and fast, in JAX.
 
-from jaxpg import cartpole
+`jaxpg.sweep` and `jaxpg.evaluate` name the functions; import from their modules with
+`from jaxpg.sweep import ...` and `from jaxpg.evaluate import ...`.
+"""
+
+__version__ = "0.1.0"
+
+from jaxpg import cartpole, gym
+from jaxpg.evaluate import evaluate
 from jaxpg.policies import basic_policy
 from jaxpg.reinforce import TrainConfig, TrainResult, train
 from jaxpg.returns import discount_and_normalize_rewards, discount_rewards
+from jaxpg.sweep import sweep
 
-__version__ = "0.1.0"
+gym.register()
 
 __all__ = [
     "cartpole",
     "basic_policy",
     "discount_rewards",
     "discount_and_normalize_rewards",
+    "evaluate",
+    "sweep",
     "TrainConfig",
     "TrainResult",
     "train",

@@ -180,7 +180,7 @@ def step(state, action, env_params):
     )
     truncated = time >= p.max_steps
     if p.sutton_barto_reward:
-        reward = -terminated.astype(state.x.dtype)
+        reward = jnp.where(terminated, -1.0, 0.0).astype(state.x.dtype)
     else:
         reward = jnp.ones_like(state.x)
     return observe(state), state, reward, terminated, truncated

@@ -128,17 +128,18 @@ def cmd_train(args):
 
 
 def cmd_sweep(args):
-    from jaxpg import checkpoint, plots, results, sweep
+    from jaxpg import checkpoint, plots, results
+    from jaxpg.sweep import expand_grid, sweep
 
     if args.seeds < 1:
         raise ValueError(f"seeds: must be a positive integer, got {args.seeds}")
     config = _config(args, learning_rate=args.lr[0], discount=args.discount[0])
     grid = {"learning_rate": args.lr, "discount": args.discount}
-    sweep.expand_grid(config, grid)  # validates before compiling
+    expand_grid(config, grid)  # validates before compiling
     out = results.check_out_dir(args.out)
     _enable_compilation_cache(args.no_cache)
     start = time.perf_counter()
-    swept = sweep.sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet)
+    swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet)
     seconds = time.perf_counter() - start
     s = swept.summary
     labels = [f"lr={g['learning_rate']:g}, discount={g['discount']:g}" for g in swept.grid]
@@ -199,13 +200,14 @@ def cmd_conformance(args):
 
 
 def cmd_reproduce(args):
-    from jaxpg import evaluate, policies, returns
+    from jaxpg import policies, returns
+    from jaxpg.evaluate import evaluate, gymnasium_reset_states
     from jaxpg.reinforce import TrainConfig, train
 
     _enable_compilation_cache(args.no_cache)
     print("Basic policy, 500 episodes of 200 steps from Gymnasium's reset(seed=episode):")
-    states = evaluate.gymnasium_reset_states(500)
-    stats = evaluate.evaluate(policies.basic_policy, 500, 200, init_states=states)
+    states = gymnasium_reset_states(500)
+    stats = evaluate(policies.basic_policy, 500, 200, init_states=states)
     _beside("mean, std, min, max", (stats.mean, stats.std, stats.min, stats.max), BOOK_BASIC_POLICY)
     print("Discounting:")
     _beside("discount_rewards([10, 0, -50], 0.8)", returns.discount_rewards([10, 0, -50], 0.8), BOOK_DISCOUNT)
@@ -293,7 +295,7 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
         return args.handler(args) or 0
-    except ValueError as error:
+    except (ValueError, OSError) as error:
         print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -10,6 +10,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from jaxpg import sums
+
 ACTIVATIONS = {
     "elu": nn.elu,
     "relu": nn.relu,
@@ -51,31 +53,58 @@ class PolicyNetwork(nn.Module):
     def __call__(self, obs):
         x = obs
         for size in self.hidden:
-            x = ACTIVATIONS[self.activation](_dense(size)(x))
-        return _dense(1)(x)[..., 0]
+            x = ACTIVATIONS[self.activation](Dense(size)(x))
+        return Dense(1)(x)[..., 0]
 
 
-def _dense(features):
-    return nn.Dense(
-        features,
-        kernel_init=nn.initializers.glorot_uniform(),
-        bias_init=nn.initializers.zeros,
-        dot_general=_small_dot_general,
+class Dense(nn.Module):
+    """A dense layer with Keras's initialisation, computed by `dense`."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, x):
+        kernel = self.param(
+            "kernel", nn.initializers.glorot_uniform(), (x.shape[-1], self.features)
+        )
+        bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        return dense(x, kernel, bias)
+
+
+@jax.custom_vjp
+def dense(x, kernel, bias):
+    """`x [..., K] @ kernel [K, N] + bias [N]`, elementwise, with batch-invariant gradients.
+
+    The policy's matrices are tiny: written as K multiply-adds they fuse with the activations and
+    the physics around them instead of becoming one small matrix-multiply call per layer and step.
+    The gradient sums over the batch pairwise (`sums.pairwise_sum`), so it rounds the same for a
+    run alone as for a run in a sweep.
+    """
+    return _matmul(x, kernel) + bias
+
+
+def _matmul(x, kernel):
+    out = x[..., 0, None] * kernel[0]
+    for k in range(1, kernel.shape[0]):
+        out = out + x[..., k, None] * kernel[k]
+    return out
+
+
+def _dense_fwd(x, kernel, bias):
+    return dense(x, kernel, bias), (x, kernel)
+
+
+def _dense_bwd(residuals, grad):
+    x, kernel = residuals
+    batch = tuple(range(grad.ndim - 1))
+    return (
+        _matmul(grad, kernel.T),
+        sums.pairwise_sum(x[..., :, None] * grad[..., None, :], batch),
+        sums.pairwise_sum(grad, batch),
     )
 
 
-def _small_dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_element_type=None):
-    """`lhs [..., K] @ rhs [K, N]` as a broadcast multiply and sum.
-
-    The policy's matrices are tiny (K, N <= a few dozen); written elementwise they fuse with the
-    activations around them instead of becoming one small matrix-multiply call per layer, which
-    under `vmap` over seeds is what dominates the run time on CPU.
-    """
-    del precision, preferred_element_type
-    (lhs_contract, rhs_contract), (lhs_batch, rhs_batch) = dimension_numbers
-    assert tuple(lhs_contract) == (lhs.ndim - 1,) and tuple(rhs_contract) == (0,)
-    assert not lhs_batch and not rhs_batch
-    return jnp.sum(lhs[..., :, None] * rhs, axis=-2)
+dense.defvjp(_dense_fwd, _dense_bwd)
 
 
 def init_network(key, network):

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxpg import cartpole, policies, progress, returns, rollout
+from jaxpg import cartpole, policies, progress, returns, rollout, sums
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,6 +110,9 @@ def check_optimizer(name):
         )
 
 
+RUNS_AXIS = "runs"  # the vmapped axis of runs: rollouts skip ended chunks once all runs agree
+
+
 class TrainState(NamedTuple):
     """The carry of one run from iteration to iteration."""
 
@@ -144,11 +147,13 @@ def reinforce_loss(policy_params, network, transitions, advantages):
     """
     logits = network.apply(policy_params, transitions.obs)
     log_probs = policies.log_prob(logits, transitions.action)
-    weighted = jnp.where(transitions.alive, advantages * log_probs, 0.0)
-    # Summed apart from the log-probabilities it is fused with otherwise: the fused sum rounds
-    # differently with the number of runs vmapped, and a run must not depend on its neighbours.
-    weighted = jax.lax.optimization_barrier(weighted)
-    return -weighted.sum() / jnp.maximum(transitions.alive.sum(), 1)
+    return -sums.pairwise_mean(advantages * log_probs, (0, 1), transitions.alive)
+
+
+def global_norm(tree):
+    """The L2 norm of every leaf together, summed pairwise so that it is batch-invariant."""
+    squares = [sums.pairwise_sum(jnp.square(leaf).ravel(), 0) for leaf in jax.tree.leaves(tree)]
+    return jnp.sqrt(sum(squares))
 
 
 def make_optimizer(config, learning_rate):
@@ -171,7 +176,8 @@ def iterate(config, train_state, hyperparams):
     # Play the episodes with the current policy.
     policy = policies.network_policy(network, train_state.policy_params)
     episodes = rollout.rollout(
-        key_rollout, policy, config.env_params, config.episodes, config.max_steps
+        key_rollout, policy, config.env_params, config.episodes, config.max_steps,
+        axis_name=RUNS_AXIS,
     )
     transitions = episodes.transitions
 
@@ -194,7 +200,7 @@ def iterate(config, train_state, hyperparams):
         max_return=episodes.returns.max(),
         mean_length=episodes.lengths.mean(),
         loss=loss,
-        grad_norm=optax.global_norm(jax.lax.optimization_barrier(grads)),
+        grad_norm=global_norm(grads),
     )
     return TrainState(policy_params, opt_state, key), metrics
 
@@ -211,9 +217,9 @@ def compiled_program(config, show_progress):
         train_states = jax.vmap(functools.partial(init_run, config))(keys, hyperparams)
 
         def one_iteration(train_states, iteration):
-            train_states, metrics = jax.vmap(functools.partial(iterate, config))(
-                train_states, hyperparams
-            )
+            train_states, metrics = jax.vmap(
+                functools.partial(iterate, config), axis_name=RUNS_AXIS
+            )(train_states, hyperparams)
             if show_progress:
                 progress.report(iteration, metrics.mean_return)
             return train_states, metrics

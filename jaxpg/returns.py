@@ -4,6 +4,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpg import sums
+
 
 def discount_masked(rewards, alive, discount_rate):
     """Discounted returns of `[T, E]` rewards; 0 on the steps that are not alive.
@@ -25,10 +27,10 @@ def normalize_masked(values, alive):
 
     When the std is 0 (every alive value equal) the values are only centred, so nothing divides by 0.
     """
-    count = jnp.maximum(alive.sum(), 1)
-    mean = jnp.where(alive, values, 0.0).sum() / count
+    axes = tuple(range(values.ndim))
+    mean = sums.pairwise_mean(values, axes, alive)
     centred = jnp.where(alive, values - mean, 0.0)
-    std = jnp.sqrt(jnp.square(centred).sum() / count)
+    std = jnp.sqrt(sums.pairwise_mean(jnp.square(centred), axes, alive))
     return centred / jnp.where(std > 0, std, 1.0)
 
 

@@ -29,6 +29,9 @@ class Episodes(NamedTuple):
     lengths: jax.Array  # [E] number of alive steps
 
 
+CHUNK = 20  # steps simulated between checks whether every episode has ended
+
+
 def reset_batch(key, num, env_params):
     """`num` initial states drawn with one call to the random number generator.
 
@@ -47,16 +50,21 @@ def _select(done, old, new):
     return jax.tree.map(lambda o, n: jnp.where(done, o, n), old, new)
 
 
-def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
+def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, axis_name=None):
     """Plays `num_episodes` episodes of at most `max_steps` steps with `policy`.
+
+    Time runs in chunks of `CHUNK` steps; once every episode has ended, the remaining chunks are
+    skipped, not simulated. Their transitions are all masked (obs of the final state, action 0).
 
     Args:
       key: PRNG key for the initial states and the policy's randomness.
       policy: `(obs [E, 4], key) -> action [E]`.
       env_params: `CartPoleParams`; an episode also ends when `env_params.max_steps` truncates it.
       num_episodes: E.
-      max_steps: T, the length of the scan.
+      max_steps: T, the length of the trajectory.
       init_state: optional `CartPoleState` with `[E]` leaves, instead of random resets.
+      axis_name: under `vmap(..., axis_name=...)`, skip a chunk only once the episodes of every
+        vmapped rollout have ended, so the skip stays a real branch rather than a select.
 
     Returns:
       `Episodes` with transitions of shape `[T, E, ...]`.
@@ -64,7 +72,9 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
     key_reset, key_policy = jax.random.split(key)
     if init_state is None:
         _, init_state = reset_batch(key_reset, num_episodes, env_params)
-    step_keys = jax.random.split(key_policy, max_steps)
+    chunk = min(CHUNK, max_steps)
+    num_chunks = -(-max_steps // chunk)
+    step_keys = jax.random.split(key_policy, num_chunks * chunk).reshape(num_chunks, chunk, -1)
     batched_step = jax.vmap(cartpole.step, in_axes=(0, 0, None))
 
     def one_step(carry, step_key):
@@ -78,8 +88,31 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
         done = done | terminated | truncated
         return (next_state, done), Transition(obs, action, reward, alive)
 
+    def play_chunk(carry, keys):
+        return jax.lax.scan(one_step, carry, keys)
+
+    def skip_chunk(carry, keys):
+        state, done = carry
+        obs = cartpole.observe(state)
+        frozen = Transition(
+            obs=jnp.broadcast_to(obs, (chunk, *obs.shape)),
+            action=jnp.zeros((chunk, num_episodes), jnp.int32),
+            reward=jnp.zeros((chunk, num_episodes), obs.dtype),
+            alive=jnp.zeros((chunk, num_episodes), bool),
+        )
+        return carry, frozen
+
+    def one_chunk(carry, keys):
+        all_done = jnp.all(carry[1])
+        if axis_name is not None:
+            all_done = jax.lax.pmin(all_done.astype(jnp.int32), axis_name) > 0
+        return jax.lax.cond(all_done, skip_chunk, play_chunk, carry, keys)
+
     done = jnp.zeros(num_episodes, dtype=bool)
-    _, transitions = jax.lax.scan(one_step, (init_state, done), step_keys)
+    _, transitions = jax.lax.scan(one_chunk, (init_state, done), step_keys)
+    transitions = jax.tree.map(
+        lambda leaf: leaf.reshape(num_chunks * chunk, *leaf.shape[2:])[:max_steps], transitions
+    )
     returns = transitions.reward.sum(axis=0)
     lengths = transitions.alive.sum(axis=0)
     return Episodes(transitions, returns, lengths)

@@ -1,0 +1,156 @@
+"""Compile time, run time and environment steps per second of REINFORCE training, jaxpg vs numpy.
+
+jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) as one compiled
+program, `reinforce.compiled_program`; compilation (`.lower(...).compile()`) is timed apart from
+the runs. The numpy book implementation (`book_numpy.py`: one seed, one step at a time on
+Gymnasium's CartPole-v1) runs in the same process for scale.
+
+Two step counts:
+- simulated steps: steps inside an episode before it ended (sum over runs and iterations of
+  mean_length * episodes); the only kind the numpy trainer takes.
+- padded steps: iterations * episodes * max_steps * R, what jaxpg's fixed-horizon scan computes
+  (steps after an episode ended are masked, not skipped).
+
+Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
+
+    python benchmarks/train_throughput.py                    # seeds 1, 64, 1024; 150 iterations
+    python benchmarks/train_throughput.py --quick            # a quick check that everything runs
+"""
+
+import argparse
+import dataclasses
+
+import book_numpy
+import common
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpg import reinforce
+
+
+def hyperparams_for(config, num_runs):
+    """The config's learning rate and discount as `[R]` arrays, as a sweep passes them."""
+    return reinforce.Hyperparams(
+        jnp.full((num_runs,), config.learning_rate, jnp.float32),
+        jnp.full((num_runs,), config.discount, jnp.float32),
+    )
+
+
+def step_counts(config, num_runs, mean_lengths):
+    """(simulated steps, padded steps) of R runs whose `mean_lengths` are `[R, I]`."""
+    simulated = float(np.sum(mean_lengths)) * config.episodes
+    padded = config.iterations * config.episodes * config.max_steps * num_runs
+    return simulated, padded
+
+
+def measure_jaxpg(config, num_runs, repeats):
+    """Compiles the training of `num_runs` seeds, then times `repeats` runs (median)."""
+    keys = reinforce.run_keys(np.arange(num_runs))
+    hyperparams = hyperparams_for(config, num_runs)
+    program = reinforce.compiled_program(config, show_progress=False)
+    compiled, compile_times = common.compile_jitted(program, keys, hyperparams)
+    timing, result = common.time_calls(compiled, keys, hyperparams, repeats=repeats)
+    metrics = result.metrics
+    simulated, padded = step_counts(config, num_runs, np.asarray(metrics.mean_length))
+    return _row("jaxpg", num_runs, config.iterations, timing["median_s"], simulated, padded,
+                np.mean(np.asarray(metrics.mean_return)[:, -1]),
+                times_s=timing["times_s"], **compile_times)
+
+
+def measure_book(config, iterations, env_id):
+    """The numpy book trainer, one seed; with fewer iterations than the config's, its run time is
+    extrapolated from the mean time per iteration (an underestimate: episodes lengthen as the
+    policy learns). Steps per second are those measured."""
+    history = book_numpy.run(seed=0, iterations=iterations, env_id=env_id)
+    seconds = sum(history.seconds)
+    padded = iterations * book_numpy.N_EPISODES_PER_UPDATE * book_numpy.N_MAX_STEPS
+    row = _row("book-numpy", 1, iterations, seconds, sum(history.steps), padded,
+               history.mean_returns[-1], env=env_id)
+    row["run_s_for_config_iterations"] = seconds / iterations * config.iterations
+    row["extrapolated"] = iterations != config.iterations
+    return row
+
+
+def _row(impl, num_runs, iterations, run_s, simulated, padded, final_mean_return, **extra):
+    return {
+        "impl": impl,
+        "n": num_runs,
+        "iterations": iterations,
+        "run_s": run_s,
+        "simulated_steps": simulated,
+        "padded_steps": padded,
+        "steps_per_s": simulated / run_s,
+        "padded_steps_per_s": padded / run_s,
+        "final_mean_return": float(final_mean_return),
+        **extra,
+        "peak_rss_mib": common.peak_rss_mib(),
+    }
+
+
+def parse_args():
+    parser = argparse.ArgumentParser(description="REINFORCE training throughput, jaxpg vs numpy")
+    parser.add_argument("--quick", action="store_true",
+                        help="seeds 1,8, 10 iterations, 5 numpy iterations: checks that all runs")
+    parser.add_argument("--seeds", default="1,64,1024",
+                        help="comma-separated numbers of seeds R trained at once")
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="training iterations (default: TrainConfig's, the book's 150)")
+    parser.add_argument("--repeats", type=int, default=None,
+                        help="timed runs per R (default: 3 up to 64 seeds, else 1)")
+    parser.add_argument("--book-iterations", type=int, default=None,
+                        help="iterations of the numpy trainer (default: as --iterations; "
+                             "fewer are extrapolated); 0 skips it")
+    parser.add_argument("--book-env", default="CartPole-v1",
+                        help="Gymnasium env id the numpy trainer runs on")
+    args = parser.parse_args()
+    if args.quick:
+        args.seeds = "1,8"
+        args.iterations = args.iterations or 10
+        args.book_iterations = 5 if args.book_iterations is None else args.book_iterations
+    args.seeds = [int(r) for r in args.seeds.split(",")]
+    if any(r < 1 for r in args.seeds):
+        parser.error("--seeds: every R must be a positive integer")
+    return args
+
+
+def main():
+    args = parse_args()
+    config = reinforce.TrainConfig()
+    if args.iterations:
+        config = dataclasses.replace(config, iterations=args.iterations)
+    book_iterations = config.iterations if args.book_iterations is None else args.book_iterations
+    common.print_header(f"REINFORCE training throughput: {config}")
+
+    rows = []
+    for num_runs in sorted(args.seeds):
+        repeats = args.repeats or (3 if num_runs <= 64 else 1)
+        rows.append(measure_jaxpg(config, num_runs, repeats))
+        _print_progress(rows[-1])
+    if book_iterations:
+        rows.append(measure_book(config, book_iterations, args.book_env))
+        _print_progress(rows[-1])
+
+    columns = ["impl", "n", "iterations", "lower_s", "compile_s", "run_s", "steps_per_s",
+               "padded_steps_per_s", "final_mean_return", "peak_rss_mib"]
+    common.print_table(rows, columns, title="steps/s = simulated steps / run_s (median run)")
+    book = [row for row in rows if row["impl"] == "book-numpy"]
+    if book and book[0]["extrapolated"]:
+        estimate = book[0]["run_s_for_config_iterations"]
+        print(f"book-numpy ran {book[0]['iterations']} iterations; {config.iterations} would "
+              f"take about {estimate:.1f} s (extrapolated, an underestimate)")
+    for row in rows:
+        if row["impl"] == "jaxpg" and book:
+            print(f"jaxpg R={row['n']}: {row['steps_per_s'] / book[0]['steps_per_s']:,.1f}x "
+                  f"the numpy trainer's simulated steps/s")
+    path = common.write_results("train_throughput", args, rows, config=dataclasses.asdict(config))
+    common.write_chart(rows, path, "REINFORCE training, simulated env steps/s",
+                       xlabel="R (seeds trained at once)")
+
+
+def _print_progress(row):
+    print(f"{row['impl']:>10}  R={row['n']:<5}  {row['run_s']:8.2f} s  "
+          f"{row['steps_per_s']:>14,.0f} simulated steps/s", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,260 @@
+"""Saving and loading trained policies with the configuration that trained them.
+
+A checkpoint is one file, by convention `policy.msgpack` (the name `jaxpg train --out DIR` writes
+and `load(DIR)` reads), holding a msgpack map written by `flax.serialization.msgpack_serialize`:
+
+    format          "jaxpg-checkpoint": marks the file as a jaxpg checkpoint
+    format_version  1: bumped when the layout changes; a reader refuses newer versions
+    jaxpg_version   the `jaxpg.__version__` that wrote the file, e.g. "0.1.0"
+    config          the `TrainConfig` as a map of its fields; `hidden` is a list, and `env` is
+                    either a preset name ("CartPole-v1") or a map of `CartPoleParams` fields
+    policy_params   the flax state dict of the policy network, e.g.
+                    {"params": {"Dense_0": {"kernel": [4, 5], "bias": [5]}, "Dense_1": {...}}},
+                    arrays stored as flax's msgpack ndarray extension (dtype, shape, raw bytes)
+    metrics         nil, or a map of `Metrics` fields to arrays (`[I]` per-iteration statistics)
+
+Any msgpack reader can open the file; flax's `msgpack_restore` turns the arrays back into numpy.
+
+Every file jaxpg writes (checkpoints, animations, plots) goes through `atomic_path`: the content
+is written to a temporary file in the same directory, flushed to disk, then renamed over the
+target, so a crash mid-write leaves the previous file intact (and perhaps a stray
+`.NAME.*.tmp*` file beside it).
+"""
+
+import contextlib
+import dataclasses
+import os
+import pathlib
+import uuid
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import serialization
+
+from jaxpg import cartpole, reinforce
+
+FORMAT = "jaxpg-checkpoint"
+FORMAT_VERSION = 1
+FILENAME = "policy.msgpack"
+
+
+class Checkpoint(NamedTuple):
+    """A loaded checkpoint."""
+
+    policy_params: dict  # the policy network's parameters, as jax arrays
+    config: reinforce.TrainConfig
+    version: str  # the jaxpg version that wrote it
+    metrics: reinforce.Metrics | None
+
+
+# --- Atomic writes -------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yields a temporary path beside `path`; on success, moves the file written there onto `path`.
+
+    The temporary name ends with the same suffix as `path`, so writers that pick a format from
+    the file name (imageio, matplotlib) write the right one. On an exception the temporary file
+    is removed and `path` is left as it was.
+
+    Args:
+      path: the file to (over)write.
+
+    Yields:
+      A `pathlib.Path` that does not yet hold any content; write the whole file there.
+    """
+    path = pathlib.Path(path)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp{path.suffix}")
+    # Created here (honouring the umask, unlike mkstemp's 0600) so the name is ours alone.
+    os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+    try:
+        yield tmp
+        _fsync(tmp, os.O_RDONLY)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    # The rename is durable only once the directory entry is on disk; not possible on Windows.
+    with contextlib.suppress(OSError):
+        _fsync(path.parent, getattr(os, "O_DIRECTORY", os.O_RDONLY))
+
+
+def _fsync(path, flags):
+    fd = os.open(path, flags)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path, data):
+    """Writes `data` (bytes, or str as UTF-8) to `path` so that readers see the old or the new file.
+
+    Args:
+      path: the file to (over)write.
+      data: the whole content.
+    """
+    if isinstance(data, str):
+        data = data.encode()
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+# --- Saving --------------------------------------------------------------------------------------
+
+
+def save(path, policy_params, config, metrics=None):
+    """Saves a policy with its `TrainConfig` (and optionally its metrics) as one file, atomically.
+
+    Args:
+      path: the file to write, or an existing directory to write `policy.msgpack` in. Missing
+        parent directories of a file are created.
+      policy_params: the policy network's parameters (`TrainResult.policy_params` of one run).
+      config: the `TrainConfig` that describes the network.
+      metrics: optional `Metrics` of the run.
+
+    Returns:
+      The `pathlib.Path` written.
+    """
+    if not isinstance(config, reinforce.TrainConfig):
+        raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
+    if metrics is not None and not isinstance(metrics, reinforce.Metrics):
+        raise ValueError(f"metrics: expected a Metrics or None, got {type(metrics).__name__}")
+    _check_params_match(policy_params, config, "policy_params")
+    path = pathlib.Path(path)
+    if path.is_dir():
+        path = path / FILENAME
+    payload = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "jaxpg_version": _jaxpg_version(),
+        "config": config_to_dict(config),
+        "policy_params": jax.tree.map(np.asarray, serialization.to_state_dict(policy_params)),
+        "metrics": None if metrics is None else jax.tree.map(np.asarray, metrics._asdict()),
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, serialization.msgpack_serialize(payload))
+    return path
+
+
+def _jaxpg_version():
+    # Imported here: jaxpg/__init__.py imports the modules that define the API before the version.
+    import jaxpg
+
+    return jaxpg.__version__
+
+
+def config_to_dict(config):
+    """A `TrainConfig` as plain msgpack-able values (the `config` entry of a checkpoint)."""
+    fields = {}
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if field.name == "hidden":
+            value = [int(size) for size in value]
+        elif isinstance(value, cartpole.CartPoleParams):
+            value = {
+                name: _scalar(getattr(value, name), f"config.env.{name}")
+                for name in cartpole.CartPoleParams.__dataclass_fields__
+            }
+        else:
+            value = _scalar(value, f"config.{field.name}")
+        fields[field.name] = value
+    return fields
+
+
+def _scalar(value, name):
+    """A Python scalar from a number, or a 0-d numpy/jax array."""
+    if isinstance(value, (str, bool, int, float)):
+        return value
+    value = np.asarray(value)
+    if value.ndim != 0:
+        raise ValueError(f"{name}: must be a scalar to be saved, got shape {value.shape}")
+    return value.item()
+
+
+def config_from_dict(fields):
+    """The `TrainConfig` of a checkpoint's `config` entry."""
+    fields = dict(fields)
+    unknown = set(fields) - {f.name for f in dataclasses.fields(reinforce.TrainConfig)}
+    if unknown:
+        raise ValueError(f"unknown config field(s) {', '.join(sorted(unknown))}")
+    if isinstance(fields.get("env"), dict):
+        fields["env"] = cartpole.CartPoleParams(**fields["env"])
+    if "hidden" in fields:
+        fields["hidden"] = tuple(fields["hidden"])
+    return reinforce.TrainConfig(**fields)
+
+
+def _check_params_match(policy_params, config, where):
+    """Raises a ValueError unless `policy_params` has the shapes of `config`'s network."""
+    expected = jax.eval_shape(
+        config.network.init, jax.random.PRNGKey(0), jax.ShapeDtypeStruct((4,), jnp.float32)
+    )
+    shapes = jax.tree.map(np.shape, serialization.to_state_dict(policy_params))
+    want = jax.tree.map(lambda leaf: leaf.shape, expected)
+    if shapes != want:
+        raise ValueError(
+            f"{where}: parameters do not fit the network of hidden={config.hidden}; "
+            f"expected shapes {want}, got {shapes}"
+        )
+
+
+# --- Loading -------------------------------------------------------------------------------------
+
+
+def resolve(path):
+    """The checkpoint file that `path` names: the path itself, or `DIR/policy.msgpack`."""
+    path = pathlib.Path(path)
+    if path.is_dir():
+        path = path / FILENAME
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such checkpoint file")
+    return path
+
+
+def load(path):
+    """Loads a checkpoint written by `save`.
+
+    Args:
+      path: a checkpoint file, or a directory holding `policy.msgpack`.
+
+    Returns:
+      `Checkpoint(policy_params, config, version, metrics)`.
+
+    Raises:
+      FileNotFoundError: there is no such file.
+      ValueError: the file is truncated, not a jaxpg checkpoint, or from a newer format version;
+        the message names the path.
+    """
+    path = resolve(path)
+    try:
+        payload = serialization.msgpack_restore(path.read_bytes())
+    except Exception as e:  # msgpack raises several unrelated types on bad input
+        raise ValueError(f"{path}: not a jaxpg checkpoint (unreadable msgpack: {e})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a jaxpg checkpoint (no {FORMAT!r} format marker)")
+    format_version = payload.get("format_version")
+    if not isinstance(format_version, int) or format_version < 1:
+        raise ValueError(
+            f"{path}: not a jaxpg checkpoint (bad format_version {format_version!r})"
+        )
+    if format_version > FORMAT_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint format version {format_version} is newer than this jaxpg reads "
+            f"(up to {FORMAT_VERSION}); upgrade jaxpg (the file was written by jaxpg "
+            f"{payload.get('jaxpg_version')})"
+        )
+    try:
+        version = str(payload["jaxpg_version"])
+        config = config_from_dict(payload["config"])
+        policy_params = jax.tree.map(jnp.asarray, payload["policy_params"])
+        _check_params_match(policy_params, config, "policy_params")
+        metrics = payload.get("metrics")
+        if metrics is not None:
+            metrics = reinforce.Metrics(**{k: jnp.asarray(v) for k, v in metrics.items()})
+    except (AttributeError, KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{path}: damaged jaxpg checkpoint ({type(e).__name__}: {e})") from None
+    return Checkpoint(policy_params, config, version, metrics)

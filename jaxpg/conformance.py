@@ -1,0 +1,343 @@
+"""The parity harness: jaxpg's CartPole against Gymnasium's classic_control `CartPoleEnv`.
+
+Gymnasium plays episodes in float64 (its own `CartPoleEnv` behind its own TimeLimit) while jaxpg,
+batched over all episodes, takes the same actions. Two comparisons run side by side:
+
+- re-synced: before every step jaxpg starts from Gymnasium's float64 state (rounded to jaxpg's
+  dtype), so each compared step carries one step's rounding only. States must agree within
+  `tolerance` (1e-6 in float32, 1e-12 in float64; relative above magnitude 1), and rewards,
+  terminated and truncated exactly, except where Gymnasium's new state lies within a few float
+  spacings (of jaxpg's dtype) of a threshold: there, rounding alone can put the two on different
+  sides of the strict comparison, so such a step is counted apart, as "near threshold", and not as
+  a failure. Truncation depends on the step count only and is never excused.
+- free-running: jaxpg follows its own trajectory under the same actions. The dynamics are chaotic,
+  so rounding differences grow until the trajectories part; where that first happens is reported
+  for information and never fails the check.
+
+Actions mix a stabilizing controller with random pushes, at a rate that goes from 0 in the first
+episode to 1 in the last, so that the episodes cover truncation, the cart leaving the track and the
+pole falling.
+"""
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpg import cartpole
+from jaxpg.evaluate import check_int, make_gymnasium_env, reset_gymnasium
+
+COMPONENTS = ("x", "x_dot", "theta", "theta_dot")
+
+# Each variant overrides these fields of the base `env_params`.
+VARIANTS = {
+    "v0": {"max_steps": 200},
+    "v1": {"max_steps": 500},
+    "euler": {"integrator": "euler"},
+    "semi-implicit": {"integrator": "semi-implicit"},
+    "sutton_barto_reward": {"sutton_barto_reward": True},
+}
+
+# Float spacings (of jaxpg's dtype, at the threshold) within which a termination may go either way:
+# the float32 state is within about one spacing of the float64 one after a step, and the threshold
+# itself is rounded to float32 by half a spacing.
+THRESHOLD_SPACINGS = 4
+
+
+def tolerance_for(dtype):
+    """The largest per-step state error allowed for jaxpg computing in `dtype`."""
+    return 1e-6 if np.dtype(dtype) == np.float32 else 1e-12
+
+
+def jaxpg_dtype():
+    """The float dtype jaxpg computes in now: float32, or float64 under `jax_enable_x64`."""
+    return np.dtype(jnp.result_type(float))
+
+
+class Outcome(NamedTuple):
+    """A batch of steps' results, as numpy arrays."""
+
+    values: np.ndarray  # [N, 4] the new state (x, x_dot, theta, theta_dot)
+    reward: np.ndarray  # [N]
+    terminated: np.ndarray  # [N] bool
+    truncated: np.ndarray  # [N] bool
+
+
+@dataclasses.dataclass(frozen=True)
+class StepStats:
+    """How jaxpg's steps compared with Gymnasium's from the same states and actions."""
+
+    tolerance: float
+    steps: int = 0
+    max_error: tuple = (0.0, 0.0, 0.0, 0.0)  # per component, |jaxpg - gym| / max(1, |gym|)
+    terminated: int = 0  # steps Gymnasium terminated (coverage)
+    truncated: int = 0  # steps Gymnasium truncated (coverage)
+    reward_mismatches: int = 0
+    terminated_mismatches: int = 0
+    truncated_mismatches: int = 0
+    near_threshold: int = 0  # reward or terminated differed within rounding of a threshold
+
+    @property
+    def ok(self):
+        return (
+            max(self.max_error) <= self.tolerance
+            and self.reward_mismatches == 0
+            and self.terminated_mismatches == 0
+            and self.truncated_mismatches == 0
+        )
+
+    def merge(self, other):
+        """The statistics of both batches of steps together."""
+        counts = {f.name: getattr(self, f.name) + getattr(other, f.name)
+                  for f in dataclasses.fields(self) if f.name not in ("tolerance", "max_error")}
+        return dataclasses.replace(
+            self, max_error=tuple(map(max, self.max_error, other.max_error)), **counts
+        )
+
+
+def relative_error(values, reference):
+    """`|values - reference| / max(1, |reference|)`, elementwise: absolute below magnitude 1."""
+    values = np.asarray(values, np.float64)
+    return np.abs(values - reference) / np.maximum(1.0, np.abs(reference))
+
+
+def near_threshold(values, env_params, dtype):
+    """Whether |x| or |theta| lies within `THRESHOLD_SPACINGS` float spacings of its threshold.
+
+    Args:
+      values: `[N, 4]` float64 states.
+      dtype: the dtype whose spacing counts (jaxpg's).
+
+    Returns:
+      `[N]` bool.
+    """
+    near = np.zeros(len(values), dtype=bool)
+    for column, threshold in ((0, env_params.x_threshold), (2, env_params.theta_threshold_radians)):
+        window = THRESHOLD_SPACINGS * np.spacing(np.dtype(dtype).type(threshold))
+        near |= np.abs(np.abs(values[:, column]) - float(threshold)) <= window
+    return near
+
+
+def compare(jaxpg_outcome, gym_outcome, env_params, dtype, mask=None):
+    """`StepStats` of jaxpg's steps against Gymnasium's, over the rows where `mask` is True."""
+    if mask is not None:
+        jaxpg_outcome = Outcome(*(a[mask] for a in jaxpg_outcome))
+        gym_outcome = Outcome(*(a[mask] for a in gym_outcome))
+    error = relative_error(jaxpg_outcome.values, gym_outcome.values)
+    near = near_threshold(gym_outcome.values, env_params, dtype)
+    reward_differs = jaxpg_outcome.reward != gym_outcome.reward
+    terminated_differs = jaxpg_outcome.terminated != gym_outcome.terminated
+    return StepStats(
+        tolerance=tolerance_for(dtype),
+        steps=len(error),
+        max_error=tuple(float(e) for e in error.max(axis=0, initial=0.0)),
+        terminated=int(gym_outcome.terminated.sum()),
+        truncated=int(gym_outcome.truncated.sum()),
+        reward_mismatches=int((reward_differs & ~near).sum()),
+        terminated_mismatches=int((terminated_differs & ~near).sum()),
+        truncated_mismatches=int((jaxpg_outcome.truncated != gym_outcome.truncated).sum()),
+        near_threshold=int(((reward_differs | terminated_differs) & near).sum()),
+    )
+
+
+@jax.jit
+def _step_values(values, times, actions, env_params):
+    state = cartpole.CartPoleState.from_array(values, times)
+    _, state, reward, terminated, truncated = jax.vmap(cartpole.step, in_axes=(0, 0, None))(
+        state, actions, env_params
+    )
+    return state.to_array(), reward, terminated, truncated
+
+
+def step_jaxpg(values, times, actions, env_params):
+    """jaxpg's step from each of N states, as one compiled batch in jaxpg's dtype.
+
+    Args:
+      values: `[N, 4]` states (rounded to jaxpg's dtype).
+      times: `[N]` steps already taken in each episode.
+      actions: `[N]` 0 or 1.
+
+    Returns:
+      `Outcome` of `[N]` steps.
+    """
+    cartpole.check_params(env_params)
+    return Outcome(*(np.asarray(a) for a in _step_values(values, times, actions, env_params)))
+
+
+def step_gymnasium(gym_env, values, times, actions):
+    """Gymnasium's step from each of N states set on one `make_gymnasium_env` environment.
+
+    The float64 state goes into `CartPoleEnv.state` and the step count into the TimeLimit, so
+    `CartPoleEnv.step` and `TimeLimit.step` themselves decide everything.
+
+    Returns:
+      `Outcome` of `[N]` steps, the states in float64.
+    """
+    if gym_env.unwrapped.state is None:
+        gym_env.reset(seed=0)  # the wrappers refuse a step before the first reset
+    out = Outcome(np.empty((len(values), 4)), np.empty(len(values)),
+                  np.empty(len(values), bool), np.empty(len(values), bool))
+    for i, (state, time, action) in enumerate(zip(values, times, actions, strict=True)):
+        gym_env.unwrapped.state = np.array(state, dtype=np.float64)
+        gym_env.unwrapped.steps_beyond_terminated = None
+        gym_env._elapsed_steps = int(time)  # gym_env is the TimeLimit, outermost of make's wrappers
+        _, out.reward[i], out.terminated[i], out.truncated[i], _ = gym_env.step(int(action))
+        out.values[i] = gym_env.unwrapped.state
+    return out
+
+
+def stabilizing_actions(obs):
+    """A PD controller on the pole angle `[N, 4] -> [N]`: on its own it balances for 500 steps."""
+    return (obs[:, 2] + 0.3 * obs[:, 3] > 0).astype(np.int32)
+
+
+@dataclasses.dataclass(frozen=True)
+class VariantReport:
+    """Conformance of one variant over its episodes."""
+
+    name: str
+    episodes: int
+    stats: StepStats  # re-synced steps
+    diverged: int  # episodes whose free-running trajectory parted from Gymnasium's
+    first_divergence: int | None  # the earliest step count at which one parted
+    median_divergence: float | None
+
+    @property
+    def ok(self):
+        return self.stats.ok
+
+
+@dataclasses.dataclass(frozen=True)
+class Report:
+    """Conformance of every variant run."""
+
+    variants: tuple
+    dtype: str
+    tolerance: float
+    divergence_tolerance: float
+
+    @property
+    def ok(self):
+        return all(v.ok for v in self.variants)
+
+    def format(self):
+        """A text table, one row per variant, and a verdict."""
+        header = (f"{'variant':<20} {'episodes':>8} {'steps':>7} {'term':>5} {'trunc':>5}  "
+                  + " ".join(f"{c:>9}" for c in COMPONENTS)
+                  + f"  {'reward':>6} {'term':>4} {'trunc':>5} {'near':>4}  "
+                  f"{'diverged':>8} {'first':>5} {'median':>6}  ok")
+        lines = [
+            f"jaxpg ({self.dtype}) vs Gymnasium CartPoleEnv (float64), re-synced every step:",
+            f"max per-step error (relative above 1) must be <= {self.tolerance:g}; mismatches of "
+            "reward / terminated / truncated must be 0",
+            "(near: reward or terminated differed where Gymnasium's state is within "
+            f"{THRESHOLD_SPACINGS} {self.dtype} spacings of a threshold; not a failure).",
+            f"Free-running, informational: episodes whose trajectory parted (error > "
+            f"{self.divergence_tolerance:g} or different termination), at which step.",
+            "",
+            header,
+            "-" * len(header),
+        ]
+        for v in self.variants:
+            s = v.stats
+            lines.append(
+                f"{v.name:<20} {v.episodes:>8} {s.steps:>7} {s.terminated:>5} {s.truncated:>5}  "
+                + " ".join(f"{e:>9.2e}" for e in s.max_error)
+                + f"  {s.reward_mismatches:>6} {s.terminated_mismatches:>4} "
+                f"{s.truncated_mismatches:>5} {s.near_threshold:>4}  {v.diverged:>8} "
+                f"{_or_dash(v.first_divergence):>5} {_or_dash(v.median_divergence):>6}  "
+                + ("yes" if v.ok else "NO")
+            )
+        lines.append("")
+        lines.append("conformance: " + ("OK" if self.ok else "FAILED"))
+        return "\n".join(lines)
+
+
+def _or_dash(value):
+    return "-" if value is None else f"{value:g}"
+
+
+def run(episodes=100, seed=0, env_params=None, variants=None, divergence_tolerance=1e-3):
+    """Plays `episodes` episodes of each variant in Gymnasium and jaxpg and compares every step.
+
+    Args:
+      episodes: episodes per variant; episode i starts from Gymnasium's `reset(seed=seed + i)`.
+      seed: a non-negative integer; also seeds the random actions.
+      env_params: the base `CartPoleParams` the variants modify (default `cartpole.V1`). A subclass
+        must be a `flax.struct.dataclass` too, to be passed into compiled code.
+      variants: names from `VARIANTS` (default: all).
+      divergence_tolerance: error at which a free-running trajectory counts as parted.
+
+    Returns:
+      `Report`; `report.ok` is False if any re-synced step disagrees.
+    """
+    check_int("episodes", episodes, 1)
+    check_int("seed", seed, 0)
+    env_params = cartpole.V1 if env_params is None else env_params
+    cartpole.check_params(env_params)
+    variants = tuple(VARIANTS) if variants is None else (
+        (variants,) if isinstance(variants, str) else tuple(variants))
+    unknown = [name for name in variants if name not in VARIANTS]
+    if unknown or not variants:
+        raise ValueError(
+            f"variants: allowed {', '.join(VARIANTS)}; got {', '.join(unknown) or 'none'}"
+        )
+    dtype = jaxpg_dtype()
+    reports = tuple(
+        _run_variant(name, env_params.replace(**VARIANTS[name]), episodes, seed, dtype,
+                     divergence_tolerance)
+        for name in variants
+    )
+    return Report(reports, dtype.name, tolerance_for(dtype), divergence_tolerance)
+
+
+def _run_variant(name, env_params, episodes, seed, dtype, divergence_tolerance):
+    """`VariantReport` of `episodes` episodes played in both, stepping all episodes together."""
+    gym_envs = [make_gymnasium_env(env_params) for _ in range(episodes)]
+    for i, gym_env in enumerate(gym_envs):
+        reset_gymnasium(gym_env, seed + i, env_params)
+    gym_values = np.stack([gym_env.unwrapped.state for gym_env in gym_envs])  # [E, 4] float64
+    free_values = gym_values.astype(dtype)  # jaxpg's own trajectory
+    rng = np.random.default_rng(seed)
+    random_rate = np.linspace(0.0, 1.0, episodes)
+    alive = np.ones(episodes, dtype=bool)
+    parted_at = np.zeros(episodes, dtype=np.int64)  # 0: not (yet) parted
+    stats = StepStats(tolerance_for(dtype))
+    times = np.zeros(episodes, dtype=np.int32)
+    while alive.any():
+        obs = gym_values.astype(np.float32)  # what a policy sees in Gymnasium
+        actions = np.where(rng.random(episodes) < random_rate, rng.integers(0, 2, episodes),
+                           stabilizing_actions(obs)).astype(np.int32)
+        # The re-synced and the free-running steps as one batch of 2E.
+        both = step_jaxpg(np.concatenate([gym_values, free_values]), np.tile(times, 2),
+                          np.tile(actions, 2), env_params)
+        synced = Outcome(*(a[:episodes] for a in both))
+        free = Outcome(*(a[episodes:] for a in both))
+        gym_out = _step_all(gym_envs, actions, alive, gym_values)
+        stats = stats.merge(compare(synced, gym_out, env_params, dtype, mask=alive))
+        times += 1
+        parts = alive & (parted_at == 0) & (
+            (relative_error(free.values, gym_out.values).max(axis=1) > divergence_tolerance)
+            | (free.terminated != gym_out.terminated)
+        )
+        parted_at[parts] = times[parts]
+        alive &= ~(gym_out.terminated | gym_out.truncated)
+        gym_values, free_values = gym_out.values, free.values
+    parted = parted_at[parted_at > 0]
+    return VariantReport(
+        name, episodes, stats, len(parted),
+        int(parted.min()) if len(parted) else None,
+        float(np.median(parted)) if len(parted) else None,
+    )
+
+
+def _step_all(gym_envs, actions, alive, values):
+    """Steps the Gymnasium environments still alive; the others keep their `values`."""
+    out = Outcome(values.copy(), np.zeros(len(gym_envs)), np.zeros(len(gym_envs), bool),
+                  np.zeros(len(gym_envs), bool))
+    for i in np.flatnonzero(alive):
+        _, out.reward[i], out.terminated[i], out.truncated[i], _ = gym_envs[i].step(int(actions[i]))
+        out.values[i] = gym_envs[i].unwrapped.state
+    return out

@@ -1,0 +1,99 @@
+"""The `jaxpg` command end to end: outputs, exit statuses, one-line errors, no lost results."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from jaxpg import checkpoint, cli
+
+SMALL = ["--iterations", "3", "--episodes", "2", "--max-steps", "20", "--quiet", "--no-cache"]
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "jaxpg.cli", *args], capture_output=True, text=True)
+
+
+def test_train_writes_results_that_evaluate_loads(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli.main(["train", *SMALL, "--seed", "3", "--out", str(out)]) == 0
+    assert {p.name for p in out.iterdir()} == {
+        "policy.msgpack", "metrics.json", "metrics.csv", "learning_curve.png"}
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert len(metrics["metrics"]["mean_return"]) == 3 and metrics["seed"] == 3
+    assert (out / "metrics.csv").read_text().splitlines()[0].startswith("iteration,mean_return")
+    assert checkpoint.load(out).config.max_steps == 20
+    capsys.readouterr()
+    assert cli.main(["evaluate", "--policy", str(out), "--episodes", "5", "--backend", "gymnasium"]) == 0
+    assert "mean" in capsys.readouterr().out
+
+
+def test_sweep_writes_summary_and_picture(tmp_path):
+    out = tmp_path / "sweep"
+    assert cli.main(["sweep", *SMALL, "--seeds", "3", "--lr", "0.01,0.02", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["grid"]) == 2 and len(summary["fraction_solved"]) == 2
+    with np.load(out / "metrics.npz") as npz:
+        assert npz["mean_return"].shape == (2, 3, 3)
+    assert len((out / "runs.csv").read_text().splitlines()) == 1 + 2 * 3
+    assert (out / "sweep.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("args, word", [
+    (["train", "--iterations", "0"], "iterations"),
+    (["train", "--episodes", "-2"], "episodes"),
+    (["train", "--discount", "1.5"], "discount"),
+    (["train", "--lr", "0"], "learning_rate"),
+    (["train", "--optimizer", "nope"], "optimizer"),
+    (["train", "--activation", "nope"], "activation"),
+    (["train", "--env", "CartPole-v7"], "env"),
+    (["train", "--hidden", "x"], "hidden"),
+    (["sweep", "--seeds", "0"], "seeds"),
+    (["sweep", "--discount", "0.9,2"], "discount"),
+    (["evaluate", "--backend", "mujoco"], "backend"),
+    (["evaluate", "--policy", "/nonexistent/dir"], "policy"),
+    (["evaluate", "--env", "CartPole-v7"], "env"),
+    (["render", "--max-steps", "0"], "max_steps"),
+    (["frobnicate"], "invalid choice"),
+])
+def test_bad_input_exits_2_with_one_line(args, word):
+    result = _run(*args)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and word in lines[0] and "Traceback" not in result.stderr
+
+
+def test_out_that_is_a_file_is_refused(tmp_path):
+    target = tmp_path / "file"
+    target.write_text("keep me")
+    result = _run("train", *SMALL, "--out", str(target))
+    assert result.returncode == 2 and "out" in result.stderr
+    assert target.read_text() == "keep me"
+
+
+def test_failed_run_keeps_earlier_results(tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    assert cli.main(["train", *SMALL, "--out", str(out)]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def broken_plot(*args, **kwargs):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr("jaxpg.plots.learning_curve", broken_plot)
+    with pytest.raises(RuntimeError):
+        cli.main(["train", *SMALL, "--seed", "9", "--out", str(out)])
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_evaluate_basic_policy_prints_statistics(capsys):
+    assert cli.main(["evaluate", "--episodes", "20", "--max-steps", "50"]) == 0
+    out = capsys.readouterr().out
+    assert "mean" in out and "std" in out and "min" in out and "max" in out
+
+
+def test_render_writes_a_gif(tmp_path):
+    path = tmp_path / "cart.gif"
+    assert cli.main(["render", "--out", str(path), "--max-steps", "10"]) == 0
+    assert path.read_bytes()[:6] in (b"GIF87a", b"GIF89a")

@@ -1,0 +1,162 @@
+"""The Gymnasium adapters against Gymnasium's own CartPoleEnv and CartPoleVectorEnv."""
+
+import warnings
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from jaxpg import cartpole, render
+from jaxpg import gym as jaxpg_gym
+
+jaxpg_gym.register()
+
+# Steps are computed in float32 from the float64 state Gymnasium holds.
+ATOL = 1e-5
+
+
+@pytest.fixture(autouse=True)
+def _quiet_gymnasium():
+    # CartPole-v0 is "out of date" and stepping a finished episode warns; both are expected here.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+def test_register_is_idempotent_and_mirrors_gymnasium_specs():
+    jaxpg_gym.register()  # a second time: no error, nothing replaced
+    for name in ("CartPole-v1", "CartPole-v0"):
+        ours, theirs = gymnasium.spec(f"jaxpg/{name}"), gymnasium.spec(name)
+        assert ours.max_episode_steps == theirs.max_episode_steps
+        assert ours.reward_threshold == theirs.reward_threshold
+        env, reference = gymnasium.make(f"jaxpg/{name}"), gymnasium.make(name)
+        assert env.observation_space == reference.observation_space
+        assert env.action_space == reference.action_space
+
+
+def test_passes_gymnasium_env_checker():
+    check_env(gymnasium.make("jaxpg/CartPole-v1", render_mode="rgb_array").unwrapped)
+
+
+@pytest.mark.parametrize(
+    "name, sutton_barto_reward", [("CartPole-v1", False), ("CartPole-v0", True)]
+)
+def test_env_steps_as_gymnasium_from_the_same_states(name, sutton_barto_reward):
+    # max_episode_steps=40 makes some episodes end by truncation as well as by falling.
+    kwargs = {"max_episode_steps": 40, "sutton_barto_reward": sutton_barto_reward}
+    env = gymnasium.make(f"jaxpg/{name}", **kwargs)
+    reference = gymnasium.make(name, **kwargs)
+    rng = np.random.default_rng(0)
+    endings = {"terminated": 0, "truncated": 0}
+    for episode in range(12):
+        obs, _ = reference.reset(seed=episode)
+        env.reset(seed=episode)
+        for _ in range(41):
+            env.unwrapped.state = reference.unwrapped.state
+            action = int(rng.integers(2))
+            expected = reference.step(action)
+            got = env.step(action)
+            np.testing.assert_allclose(got[0], expected[0], atol=ATOL)
+            assert got[0].dtype == np.float32
+            assert got[1:4] == expected[1:4]
+            if expected[2] or expected[3]:
+                endings["terminated" if expected[2] else "truncated"] += 1
+                break
+        if expected[2]:
+            # A step past termination: a caller error that both answer with the same reward.
+            assert env.step(0)[1] == reference.step(0)[1]
+    assert endings["terminated"] > 0 and endings["truncated"] > 0
+
+
+def test_vector_env_steps_and_autoresets_as_gymnasium():
+    num_envs, max_episode_steps = 8, 25
+    envs = gymnasium.make_vec("jaxpg/CartPole-v1", num_envs, max_episode_steps=max_episode_steps)
+    reference = gymnasium.make_vec(
+        "CartPole-v1", num_envs, vectorization_mode="vector_entry_point",
+        max_episode_steps=max_episode_steps,
+    )
+    assert envs.metadata["autoreset_mode"] == gymnasium.vector.AutoresetMode.NEXT_STEP
+    assert envs.observation_space == reference.observation_space
+    assert envs.action_space == reference.action_space
+    envs.reset(seed=1)
+    reference.reset(seed=1)
+    rng = np.random.default_rng(1)
+    prev_done = np.zeros(num_envs, dtype=bool)
+    for _ in range(100):
+        envs.unwrapped.state = reference.unwrapped.state
+        actions = rng.integers(2, size=num_envs)
+        expected = reference.step(actions)
+        got = envs.step(actions)
+        # Environments that finished last step reset (from different random numbers).
+        np.testing.assert_allclose(got[0][~prev_done], expected[0][~prev_done], atol=ATOL)
+        assert np.all(np.abs(got[0][prev_done]) <= 0.05)
+        for ours, theirs in zip(got[1:4], expected[1:4]):
+            assert ours.dtype == theirs.dtype
+            np.testing.assert_array_equal(ours, theirs)
+        prev_done = got[2] | got[3]
+    assert got[0].dtype == np.float32
+
+
+def test_reset_with_a_seed_is_deterministic():
+    env = gymnasium.make("jaxpg/CartPole-v1")
+    first, _ = env.reset(seed=7)
+    following, _ = env.reset()
+    again, _ = env.reset(seed=7)
+    np.testing.assert_array_equal(first, again)
+    env.reset(seed=7)
+    np.testing.assert_array_equal(following, env.reset()[0])
+    assert not np.array_equal(first, env.reset(seed=8)[0])
+    assert not np.array_equal(first, following)
+
+    envs = gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=3)
+    obs, _ = envs.reset(seed=7)
+    assert len({tuple(row) for row in obs}) == 3  # each environment has its own start
+    np.testing.assert_array_equal(obs, envs.reset(seed=7)[0])
+
+
+def test_reset_options_set_the_bounds():
+    env = gymnasium.make("jaxpg/CartPole-v1")
+    obs, _ = env.reset(seed=0, options={"low": 0.1, "high": 0.2})
+    assert np.all((obs >= 0.1) & (obs <= 0.2))
+    envs = gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=4)
+    obs, _ = envs.reset(seed=0, options={"low": -0.3, "high": -0.2})
+    assert np.all((obs >= -0.3) & (obs <= -0.2))
+
+
+def test_render_returns_the_frame_of_the_state():
+    env = gymnasium.make("jaxpg/CartPole-v1", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.unwrapped.state = np.array([1.0, 0.0, 0.15, 0.0])
+    frame = env.render()
+    assert frame.shape == (400, 600, 3) and frame.dtype == np.uint8
+    np.testing.assert_array_equal(frame, render.render_frame(np.array([1.0, 0.0, 0.15, 0.0])))
+
+    envs = gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=2, render_mode="rgb_array")
+    envs.reset(seed=0)
+    envs.unwrapped.state = np.array([[-1.0, 1.0], [0.0, 0.0], [0.1, -0.1], [0.0, 0.0]])
+    frames = envs.render()
+    assert len(frames) == 2
+    np.testing.assert_array_equal(frames[1], render.render_frame(np.array([1.0, 0, -0.1, 0])))
+
+
+def test_custom_physics_and_bad_arguments():
+    heavy = cartpole.make_params(masspole=0.5)
+    env = gymnasium.make("jaxpg/CartPole-v1", env_params=heavy)
+    env.reset(seed=0)
+    env.unwrapped.state = np.zeros(4) + [0, 0, 0.1, 0]
+    light = gymnasium.make("jaxpg/CartPole-v1")
+    light.reset(seed=0)
+    light.unwrapped.state = env.unwrapped.state
+    assert not np.allclose(env.step(1)[0], light.step(1)[0])
+
+    with pytest.raises(ValueError, match="action"):
+        env.unwrapped.step(2)
+    envs = jaxpg_gym.CartPoleVectorEnv(num_envs=2)
+    envs.reset(seed=0)
+    with pytest.raises(ValueError, match="actions"):
+        envs.step(np.array([0, 1, 1]))
+    with pytest.raises(ValueError, match="num_envs"):
+        jaxpg_gym.CartPoleVectorEnv(num_envs=0)
+    with pytest.raises(ValueError, match="render_mode"):
+        jaxpg_gym.CartPoleEnv(render_mode="human")

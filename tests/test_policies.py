@@ -1,0 +1,62 @@
+"""Policies: the book's angle policy, the network's initialisation, sampling and log-probabilities."""
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxpg import basic_policy, policies
+
+
+def test_basic_policy_pushes_towards_the_lean():
+    obs = jnp.asarray([[0, 0, -0.1, 0], [0, 0, 0.1, 0], [0, 0, 0.0, 0]])
+    # angle < 0 -> 0 (left); otherwise 1, including exactly 0 as the book's `0 if angle < 0 else 1`.
+    np.testing.assert_array_equal(basic_policy(obs), [0, 1, 1])
+
+
+def test_network_shapes_and_keras_initialisation():
+    network = policies.PolicyNetwork(hidden=(5,), activation="elu")
+    params = policies.init_network(jax.random.PRNGKey(0), network)["params"]
+    assert params["Dense_0"]["kernel"].shape == (4, 5)
+    assert params["Dense_1"]["kernel"].shape == (5, 1)
+    np.testing.assert_array_equal(params["Dense_0"]["bias"], 0)
+    # Glorot uniform: bound sqrt(6 / (fan_in + fan_out)) = sqrt(6 / 9) for the first layer.
+    assert np.abs(params["Dense_0"]["kernel"]).max() <= np.sqrt(6 / 9)
+    assert network.apply({"params": params}, jnp.zeros((7, 3, 4))).shape == (7, 3)
+
+
+def test_dense_and_its_gradient_equal_a_matrix_product():
+    key_x, key_w, key_b = jax.random.split(jax.random.PRNGKey(1), 3)
+    x = jax.random.normal(key_x, (6, 3, 4))
+    kernel = jax.random.normal(key_w, (4, 5))
+    bias = jax.random.normal(key_b, (5,))
+
+    def reference(x, kernel, bias):
+        return jnp.sum(jnp.tanh(x @ kernel + bias))
+
+    def ours(x, kernel, bias):
+        return jnp.sum(jnp.tanh(policies.dense(x, kernel, bias)))
+
+    chex.assert_trees_all_close(ours(x, kernel, bias), reference(x, kernel, bias), rtol=1e-5)
+    chex.assert_trees_all_close(
+        jax.grad(ours, argnums=(0, 1, 2))(x, kernel, bias),
+        jax.grad(reference, argnums=(0, 1, 2))(x, kernel, bias),
+        rtol=1e-5, atol=1e-5,
+    )
+
+
+def test_log_prob_and_sampling_agree():
+    logit = jnp.asarray(0.7)
+    p_left = jax.nn.sigmoid(logit)
+    np.testing.assert_allclose(jnp.exp(policies.log_prob(logit, 0)), p_left, rtol=1e-6)
+    np.testing.assert_allclose(jnp.exp(policies.log_prob(logit, 1)), 1 - p_left, rtol=1e-6)
+    actions = policies.sample_action(jnp.full((20000,), logit), jax.random.PRNGKey(0))
+    # 20,000 Bernoulli draws: the share of left pushes is within 4 standard errors of P(left).
+    assert abs(float(np.mean(actions == 0)) - float(p_left)) < 4 * np.sqrt(0.25 / 20000)
+
+
+@pytest.mark.parametrize("hidden, activation, match", [((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((), "elu", "hidden")])
+def test_bad_network_settings(hidden, activation, match):
+    with pytest.raises(ValueError, match=match):
+        policies.check_network(hidden, activation)

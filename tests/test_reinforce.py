@@ -1,0 +1,119 @@
+"""REINFORCE: the book's gradient computed literally, training quality, and bad settings."""
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxpg import TrainConfig, evaluate, policies, reinforce, returns, rollout, train
+
+
+def _book_gradient(network, policy_params, transitions):
+    """The book's algorithm, literally: per-step gradients of the binary cross-entropy between
+    P(left) and the target 1 - action, weighted by the discounted normalised returns of
+    `discount_and_normalize_rewards` (the list API), then averaged per variable over every step."""
+    obs, actions, rewards, alive = (np.asarray(a) for a in transitions)
+    lengths = alive.sum(axis=0)
+    all_rewards = [rewards[:n, e].tolist() for e, n in enumerate(lengths)]
+    final_rewards = returns.discount_and_normalize_rewards(all_rewards, 0.95)
+
+    def bce(params, o, y):
+        p_left = jax.nn.sigmoid(network.apply(params, o))
+        return -(y * jnp.log(p_left) + (1 - y) * jnp.log(1 - p_left))
+
+    step_grad = jax.jit(jax.grad(bce))
+    weighted = []
+    for e, n in enumerate(lengths):
+        for t in range(n):
+            g = step_grad(policy_params, obs[t, e], 1.0 - actions[t, e])
+            weighted.append(jax.tree.map(lambda v: final_rewards[e][t] * v, g))
+    return jax.tree.map(lambda *vs: jnp.mean(jnp.stack(vs), axis=0), *weighted)
+
+
+def test_gradient_equals_the_books_algorithm():
+    config = TrainConfig(episodes=4, max_steps=40)
+    network = config.network
+    policy_params = policies.init_network(jax.random.PRNGKey(3), network)
+    episodes = rollout.rollout(
+        jax.random.PRNGKey(4), policies.network_policy(network, policy_params),
+        config.env_params, config.episodes, config.max_steps,
+    )
+    transitions = episodes.transitions
+    assert int(transitions.alive.sum()) > 40  # several steps of several episodes
+    advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
+    ours = jax.grad(reinforce.reinforce_loss)(policy_params, network, transitions, advantages)
+    chex.assert_trees_all_close(ours, _book_gradient(network, policy_params, transitions),
+                                rtol=2e-4, atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def book_run():
+    return train(TrainConfig(), seed=42, show_progress=False)
+
+
+def test_book_settings_learn_to_balance(book_run):
+    mean_return = np.asarray(book_run.metrics.mean_return)
+    assert mean_return.shape == (150,)
+    # The book printed 199.6 at its last iteration; the bar is the last-10 mean >= 180.
+    assert mean_return[-10:].mean() >= 180
+    assert mean_return[:10].mean() < 100  # it learned: it did not start there
+
+
+def test_trained_policy_transfers_to_gymnasium(book_run):
+    config = TrainConfig()
+    policy = policies.network_policy(config.network, book_run.policy_params)
+    result = evaluate(policy, episodes=100, max_steps=200, backend="gymnasium", seed=0)
+    assert result.mean >= 180
+
+
+def test_a_rerun_is_bit_identical(book_run):
+    again = train(TrainConfig(), seed=42, show_progress=False)
+    chex.assert_trees_all_equal(again, book_run)
+
+
+def test_compiles_once_per_config():
+    config = TrainConfig(iterations=2, episodes=2, max_steps=10)
+    reinforce.compiled_program.cache_clear()
+    first = train(config, seed=0, show_progress=False)
+    second = train(config, seed=1, show_progress=False)
+    assert reinforce.compiled_program.cache_info().misses == 1
+    assert reinforce.compiled_program(config, False)._cache_size() == 1
+    assert not np.array_equal(first.metrics.mean_return, second.metrics.mean_return) or \
+        not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first.policy_params), jax.tree.leaves(second.policy_params)))
+
+
+def test_progress_reports_every_iteration(capsys):
+    import io
+    from jaxpg import progress
+
+    config = TrainConfig(iterations=5, episodes=2, max_steps=10)
+    stream = io.StringIO()
+    with progress.bar(config.iterations, stream=stream):
+        jax.block_until_ready(reinforce.compiled_program(config, True)(
+            reinforce.run_keys([0]), jax.tree.map(lambda v: jnp.asarray([v], jnp.float32), config.hyperparams)))
+    lines = stream.getvalue().splitlines()
+    assert [line.split(",")[0] for line in lines] == [f"Iteration: {i}/5" for i in range(1, 6)]
+    assert "mean rewards:" in lines[-1]
+
+
+@pytest.mark.parametrize("field, value, match", [
+    ("iterations", 0, "iterations"),
+    ("episodes", -1, "episodes"),
+    ("max_steps", 2.5, "max_steps"),
+    ("discount", 0.0, "discount"),
+    ("discount", 1.01, "discount"),
+    ("learning_rate", 0.0, "learning_rate"),
+    ("optimizer", "adamm", "optimizer"),
+    ("activation", "softmaxx", "activation"),
+    ("env", "CartPole-v9", "env"),
+])
+def test_bad_config_is_rejected_before_compiling(field, value, match):
+    with pytest.raises(ValueError, match=match):
+        TrainConfig(**{field: value})
+
+
+def test_any_optax_optimizer_by_name():
+    result = train(TrainConfig(iterations=2, episodes=2, max_steps=10, optimizer="sgd",
+                               hidden=(3, 3), activation="tanh"), seed=0, show_progress=False)
+    assert np.all(np.isfinite(result.metrics.loss))
