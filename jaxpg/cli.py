@@ -12,6 +12,8 @@ import time
 
 import numpy as np
 
+from jaxpg.evaluate import check_int
+
 PROG = "jaxpg"
 BOOK_BASIC_POLICY = (41.698, 8.389445512070509, 24.0, 63.0)  # mean, std, min, max, as printed
 BOOK_DISCOUNT = [-22.0, -40.0, -50.0]
@@ -107,7 +109,7 @@ def cmd_train(args):
 
     config = _config(args, learning_rate=args.lr, discount=args.discount)
     out = results.check_out_dir(args.out)
-    _check_seed(args.seed)
+    check_int("seed", args.seed, 0)
     _enable_compilation_cache(args.no_cache)
     start = time.perf_counter()
     result = train(config, seed=args.seed, show_progress=not args.quiet)
@@ -184,7 +186,7 @@ def cmd_render(args):
     from jaxpg import cartpole, render
 
     policy, description = _load_policy(args.policy)
-    _check_seed(args.seed)
+    check_int("seed", args.seed, 0)
     env_params = cartpole.make_params(args.env)
     frames = render.render_episode(policy, seed=args.seed, env_params=env_params, max_steps=args.max_steps)
     render.save_animation(frames, args.out)
@@ -227,11 +229,6 @@ def _beside(what, ours, book):
 
 def _fmt(value):
     return str(np.asarray(value).tolist() if hasattr(value, "shape") else value)
-
-
-def _check_seed(seed):
-    if not 0 <= seed < 2**32:
-        raise ValueError(f"seed: must be an integer in [0, 2**32), got {seed}")
 
 
 def _env_name(config):
