@@ -7,6 +7,7 @@ one line on stderr, never a traceback.
 import argparse
 import os
 import pathlib
+import re
 import sys
 import time
 
@@ -41,6 +42,20 @@ def _float_list(text):
         return [float(v) for v in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}")
+
+
+_BYTES = re.compile(r"(\d+(?:\.\d+)?)\s*([KMGT]?)(?:I?B)?", re.IGNORECASE)
+_BYTE_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+
+
+def _bytes(text):
+    """`2G`, `512MB`, `1.5GiB` or plain bytes, as a number of bytes (K, M, G, T: powers of 1024)."""
+    match = _BYTES.fullmatch(text.strip())
+    size = int(float(match[1]) * _BYTE_UNITS[match[2].upper()]) if match else 0
+    if size < 1:
+        raise argparse.ArgumentTypeError(
+            f"expected a positive size such as 2G, 512M or 1000000, got {text!r}")
+    return size
 
 
 def _add_training_args(parser):
@@ -129,7 +144,34 @@ def cmd_train(args):
     print(f"wrote {out}/: {checkpoint.FILENAME}, metrics.json, metrics.csv, learning_curve.png")
 
 
+def _join_processes(args):
+    """Joins the other processes of a sweep over several hosts; JAX must not have started yet.
+
+    Returns:
+      True when this process writes the results: the only one, or process 0 of several.
+    """
+    flags = (args.coordinator, args.num_processes, args.process_id)
+    if all(flag is None for flag in flags):
+        return True
+    if any(flag is None for flag in flags):
+        raise ValueError(
+            "coordinator: give --coordinator, --num-processes and --process-id together, or none")
+    host, _, port = args.coordinator.rpartition(":")
+    if not host or not port.isdigit():
+        raise ValueError(f"coordinator: expected HOST:PORT, got {args.coordinator!r}")
+    check_int("num_processes", args.num_processes, 1)
+    if not 0 <= args.process_id < args.num_processes:
+        raise ValueError(f"process_id: must be in [0, {args.num_processes}), got {args.process_id}")
+    import jax
+
+    jax.distributed.initialize(
+        coordinator_address=args.coordinator, num_processes=args.num_processes, process_id=args.process_id
+    )
+    return args.process_id == 0
+
+
 def cmd_sweep(args):
+    writes_results = _join_processes(args)  # first: it must come before JAX computes anything
     from jaxpg import checkpoint, plots, results
     from jaxpg.sweep import expand_grid, sweep
 
@@ -141,8 +183,11 @@ def cmd_sweep(args):
     out = results.check_out_dir(args.out)
     _enable_compilation_cache(args.no_cache)
     start = time.perf_counter()
-    swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet)
+    swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet,
+                  memory_budget=args.memory_budget)
     seconds = time.perf_counter() - start
+    if not writes_results:
+        return
     s = swept.summary
     labels = [f"lr={g['learning_rate']:g}, discount={g['discount']:g}" for g in swept.grid]
     with results.staged(out) as stage:
@@ -256,6 +301,11 @@ def build_parser():
     p.add_argument("--lr", type=_float_list, default=[0.01], help="learning rates, e.g. 0.003,0.01")
     p.add_argument("--discount", type=_float_list, default=[0.95], help="discounts, e.g. 0.9,0.95")
     p.add_argument("--out", default="runs/sweep", help="output directory (default %(default)s)")
+    p.add_argument("--memory-budget", type=_bytes, help="memory per device for training, e.g. 2G; "
+                   "the runs train in chunks that fit it (default: all at once)")
+    p.add_argument("--coordinator", help="HOST:PORT of process 0, to sweep over several hosts")
+    p.add_argument("--num-processes", type=int, help="processes taking part, one per host")
+    p.add_argument("--process-id", type=int, help="this process's number, 0 to N-1; 0 writes the results")
     p.set_defaults(handler=cmd_sweep)
 
     p = commands.add_parser("evaluate", help="evaluate a policy in jaxpg or in Gymnasium")

@@ -111,12 +111,13 @@ def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, bac
 
     With backend "jaxpg" the episodes run as one compiled `rollout.rollout` from
     `jax.random.PRNGKey(seed)`. With backend "gymnasium", episode i runs in `gymnasium.make(env)`
-    from `reset(seed=seed + i)`, one step at a time, as the book does; the policy's key at step t
-    of episode i is `fold_in(fold_in(PRNGKey(seed), i), t)`. An episode also ends when the
+    from `reset(seed=seed + i)`, one step at a time, as the book does; the policy's uniform at step
+    t of episode i is drawn from `fold_in(fold_in(PRNGKey(seed), i), t)`. An episode also ends when the
     environment's own time limit (`max_steps` of its CartPoleParams) truncates it.
 
     Args:
-      policy: `(obs [E, 4], key) -> action [E]`, e.g. `policies.basic_policy`.
+      policy: `(obs [E, 4], u [E]) -> action [E]` with u uniform in [0, 1), e.g.
+        `policies.basic_policy`.
       episodes: E, a positive integer.
       max_steps: the longest an episode may run, a positive integer.
       env: a preset name ("CartPole-v1", "CartPole-v0") or a `cartpole.CartPoleParams`.
@@ -128,7 +129,7 @@ def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, bac
       `EvalResult` with the returns `[E]`.
     """
     if not callable(policy):
-        raise ValueError(f"policy: must be a callable (obs, key) -> action, got {policy!r}")
+        raise ValueError(f"policy: must be a callable (obs, u) -> action, got {policy!r}")
     check_int("episodes", episodes, 1)
     check_int("max_steps", max_steps, 1)
     check_int("seed", seed, 0)
@@ -175,9 +176,9 @@ def _jaxpg_returns(key, env_params, init_state, policy, episodes, max_steps):
 
 @functools.partial(jax.jit, static_argnums=0)
 def _act(policy, obs, key, episode, t):
-    """The policy's action for one observation `[4]`, with the key of step t of `episode`."""
+    """The policy's action for one observation `[4]`, with the uniform of step t of `episode`."""
     key = jax.random.fold_in(jax.random.fold_in(key, episode), t)
-    return policy(obs[None], key)[0]
+    return policy(obs[None], jax.random.uniform(key, (1,)))[0]
 
 
 def _gymnasium_returns(policy, episodes, max_steps, env_params, env_id, seed):

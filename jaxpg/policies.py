@@ -1,7 +1,7 @@
 """Policies: the book's hand-coded angle policy and the flax policy network.
 
-A policy, as `rollout` uses it, maps a batch of observations `[E, 4]` and a key to actions `[E]`:
-0 pushes left, 1 pushes right.
+A policy, as `rollout` uses it, maps a batch of observations `[E, 4]` and uniforms `u [E]` in
+[0, 1) to actions `[E]`: 0 pushes left, 1 pushes right.
 """
 
 from collections.abc import Sequence
@@ -24,9 +24,9 @@ ACTIVATIONS = {
 }
 
 
-def basic_policy(obs, key=None):
+def basic_policy(obs, u=None):
     """0 (push left) if the pole angle is negative, else 1; any batch shape `[..., 4]`."""
-    del key  # deterministic
+    del u  # deterministic
     return jnp.where(obs[..., 2] < 0, 0, 1).astype(jnp.int32)
 
 
@@ -43,7 +43,8 @@ def check_network(hidden, activation):
 class PolicyNetwork(nn.Module):
     """Dense(hidden) -> activation -> ... -> Dense(1): the logit of P(push left).
 
-    Weights start Glorot-uniform and biases at zero, as Keras's Dense does.
+    Weights start Glorot-uniform and biases at zero, as Keras's Dense does. `forward` computes the
+    same logits from the parameters, also for many runs' parameters at once.
     """
 
     hidden: Sequence[int] = (5,)
@@ -51,43 +52,61 @@ class PolicyNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs):
-        x = obs
+        features = jnp.moveaxis(obs, -1, 0)
         for size in self.hidden:
-            x = ACTIVATIONS[self.activation](Dense(size)(x))
-        return Dense(1)(x)[..., 0]
+            features = ACTIVATIONS[self.activation](Dense(size)(features))
+        return Dense(1)(features)[0]
+
+
+def forward(policy_params, obs, activation):
+    """The logits `[...]` of `PolicyNetwork` for observations `[..., 4]`.
+
+    Features lead (`[4, ...]`, not `[..., 4]`), so that XLA vectorises over the batch rather than
+    over four or five features. Parameters may carry trailing run axes `[R]` (kernels `[K, N, R]`)
+    against observations `[..., R, 4]`: every run's weights then meet its own observations, on the
+    fastest-varying axis.
+    """
+    layers = policy_params["params"]
+    features = jnp.moveaxis(obs, -1, 0)
+    for i in range(len(layers)):
+        if i:
+            features = ACTIVATIONS[activation](features)
+        layer = layers[f"Dense_{i}"]
+        features = dense(features, layer["kernel"], layer["bias"])
+    return features[0]
 
 
 class Dense(nn.Module):
-    """A dense layer with Keras's initialisation, computed by `dense`."""
+    """A dense layer on features `[K, ...]`, with Keras's initialisation, computed by `dense`."""
 
     features: int
 
     @nn.compact
     def __call__(self, x):
-        kernel = self.param(
-            "kernel", nn.initializers.glorot_uniform(), (x.shape[-1], self.features)
-        )
+        kernel = self.param("kernel", nn.initializers.glorot_uniform(), (x.shape[0], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
         return dense(x, kernel, bias)
 
 
+def _along(weights, x):
+    """`weights` `[N, *runs]` shaped to broadcast against one feature of `x` `[K, *batch, *runs]`."""
+    runs = weights.ndim - 1
+    return weights.reshape(weights.shape[0], *(1,) * (x.ndim - 1 - runs), *weights.shape[1:])
+
+
 @jax.custom_vjp
 def dense(x, kernel, bias):
-    """`x [..., K] @ kernel [K, N] + bias [N]`, elementwise, with batch-invariant gradients.
+    """Output features `[N, ...]`: `sum_k x[k] * kernel[k] + bias`, for input features `[K, ...]`.
 
-    The policy's matrices are tiny: written as K multiply-adds they fuse with the activations and
-    the physics around them instead of becoming one small matrix-multiply call per layer and step.
-    The gradient sums over the batch pairwise (`sums.pairwise_sum`), so it rounds the same for a
-    run alone as for a run in a sweep.
+    The policy's matrices are tiny: written as K multiply-adds over whole batches they fuse with
+    the activations and the physics around them instead of becoming one small matrix-multiply call
+    per layer and step. The gradient sums over the batch in a fixed order (`sums.invariant_sum`),
+    so it rounds the same for a run alone as for a run in a sweep.
     """
-    return _matmul(x, kernel) + bias
-
-
-def _matmul(x, kernel):
-    out = x[..., 0, None] * kernel[0]
-    for k in range(1, kernel.shape[0]):
-        out = out + x[..., k, None] * kernel[k]
-    return out
+    out = x[0] * _along(kernel[0], x)
+    for k in range(1, x.shape[0]):
+        out = out + x[k] * _along(kernel[k], x)
+    return out + _along(bias, x)
 
 
 def _dense_fwd(x, kernel, bias):
@@ -96,11 +115,18 @@ def _dense_fwd(x, kernel, bias):
 
 def _dense_bwd(residuals, grad):
     x, kernel = residuals
-    batch = tuple(range(grad.ndim - 1))
+    runs = kernel.ndim - 2
+    batch = tuple(range(x.ndim - 1 - runs))  # the batch axes once the feature axis is last
+    x_last = jnp.moveaxis(x, 0, len(batch))  # [*batch, K, *runs]
+    grad_last = jnp.moveaxis(grad, 0, len(batch))  # [*batch, N, *runs]
+    grad_x = grad[0] * _along(kernel[:, 0], grad)
+    for n in range(1, grad.shape[0]):
+        grad_x = grad_x + grad[n] * _along(kernel[:, n], grad)
+    products = x_last[..., :, None, *(slice(None),) * runs] * jnp.expand_dims(grad_last, len(batch))
     return (
-        _matmul(grad, kernel.T),
-        sums.pairwise_sum(x[..., :, None] * grad[..., None, :], batch),
-        sums.pairwise_sum(grad, batch),
+        grad_x,
+        sums.invariant_sum(products, batch),
+        sums.invariant_sum(grad_last, batch),
     )
 
 
@@ -117,16 +143,18 @@ def log_prob(logit, action):
     return jax.nn.log_sigmoid(jnp.where(action == 0, logit, -logit))
 
 
-def sample_action(logit, key):
+def sample_action(logit, u):
     """Pushes left with probability sigmoid(logit): action 1 (right) when u > P(left), as the book."""
-    u = jax.random.uniform(key, jnp.shape(logit))
     return (u > jax.nn.sigmoid(logit)).astype(jnp.int32)
 
 
 def network_policy(network, policy_params):
-    """The trained network as a policy `(obs [E, 4], key) -> action [E]` that samples its actions."""
+    """The network as a policy `(obs [E, 4], u [E]) -> action [E]` that samples its actions.
 
-    def policy(obs, key):
-        return sample_action(network.apply(policy_params, obs), key)
+    `policy_params` may hold R runs' parameters on trailing axes, for observations `[E, R, 4]`.
+    """
+
+    def policy(obs, u):
+        return sample_action(forward(policy_params, obs, network.activation), u)
 
     return policy

@@ -1,23 +1,21 @@
-"""Per-iteration progress of a compiled training program, printed from a host callback.
+"""Per-iteration progress of training, printed on the host.
 
-The compiled program calls `report` once per iteration; the callback forwards to the bar opened by
-`bar`, so the program itself does not depend on which bar (or none) is showing.
+`bar` yields the function that training calls once per iteration with every run's mean return;
+when progress is off it yields None, so training can skip the work of reporting.
 """
 
 import contextlib
 import sys
 import time
 
-import jax
 import numpy as np
-
-_current = None
 
 
 class _Bar:
-    def __init__(self, total, stream):
+    def __init__(self, total, stream, label):
         self.total = total
         self.stream = stream
+        self.label = f"{label}: " if label else ""
         self.interactive = stream.isatty()
         self.start = time.perf_counter()
         self.every = max(1, total // 10)  # in logs, about ten lines per run
@@ -26,10 +24,11 @@ class _Bar:
         done = iteration + 1
         if not self.interactive and done % self.every and done != self.total:
             return
+        mean_returns = np.asarray(mean_returns)
         runs = f" (mean of {mean_returns.size} runs)" if mean_returns.size > 1 else ""
         line = (
-            f"Iteration: {done}/{self.total}, mean rewards: {float(np.mean(mean_returns)):.1f}"
-            f"{runs} [{time.perf_counter() - self.start:.1f}s]"
+            f"{self.label}Iteration: {done}/{self.total}, mean rewards: "
+            f"{float(np.mean(mean_returns)):.1f}{runs} [{time.perf_counter() - self.start:.1f}s]"
         )
         self.stream.write(("\r" + line) if self.interactive else line + "\n")
         self.stream.flush()
@@ -40,26 +39,24 @@ class _Bar:
             self.stream.flush()
 
 
-def _on_iteration(iteration, mean_returns):
-    if _current is not None:
-        _current.update(int(iteration), np.asarray(mean_returns))
-
-
-def report(iteration, mean_returns):
-    """Inside a traced program: send this iteration's mean returns `[R]` to the open bar."""
-    jax.debug.callback(_on_iteration, iteration, mean_returns)
-
-
 @contextlib.contextmanager
-def bar(total, enabled=True, stream=None):
-    """Shows the progress of `total` iterations on stderr while the block runs."""
-    global _current
+def bar(total, enabled=True, stream=None, label=""):
+    """Shows the progress of `total` iterations on stderr while the block runs.
+
+    Args:
+      total: iterations of training.
+      enabled: False shows nothing.
+      stream: where to write; stderr by default.
+      label: text before each line, such as which runs are training.
+
+    Yields:
+      `on_iteration(iteration, mean_returns [R])` to call once per iteration, or None if disabled.
+    """
     if not enabled:
-        yield
+        yield None
         return
-    _current = _Bar(total, stream or sys.stderr)
+    current = _Bar(total, stream or sys.stderr, label)
     try:
-        yield
+        yield current.update
     finally:
-        _current.close()
-        _current = None
+        current.close()

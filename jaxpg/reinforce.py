@@ -1,21 +1,28 @@
-"""REINFORCE on CartPole: the book's training loop as one compiled program.
+"""REINFORCE on CartPole: the book's training loop, compiled.
 
 One iteration plays `episodes` episodes of at most `max_steps` steps with the current policy,
-discounts and normalises the rewards, and takes one optimizer step on the REINFORCE loss. The whole
-run (every iteration) is a single `lax.scan`, with `vmap` over runs inside it, so that many seeds
-and hyperparameter settings train at once in one program.
+discounts and normalises the rewards, and takes one optimizer step on the REINFORCE loss. An
+iteration of every run together (`vmap` over runs) is one compiled program, so that many seeds and
+hyperparameter settings train at once.
+
+The host calls that program once per iteration, one iteration ahead of what it has shown:
+XLA never waits for Python, progress needs no callback from inside the program, and a program
+without callbacks can be kept in JAX's persistent compilation cache, so a second process does not
+compile again.
 """
 
 import dataclasses
 import functools
 import inspect
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
-from jaxpg import cartpole, policies, progress, returns, rollout, sums
+from jaxpg import cartpole, policies, progress, returns, rng, rollout, sums
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,10 +82,11 @@ class Hyperparams(NamedTuple):
 
 def check_hyperparams(learning_rate, discount):
     """Raises a ValueError unless every learning rate is positive and every discount in (0, 1]."""
-    for lr in jnp.atleast_1d(jnp.asarray(learning_rate)).tolist():
+    # numpy, not jnp: building a TrainConfig must not start JAX (jax.distributed comes first).
+    for lr in np.atleast_1d(np.asarray(learning_rate)).tolist():
         if not lr > 0:
             raise ValueError(f"learning_rate: must be positive, got {lr}")
-    for d in jnp.atleast_1d(jnp.asarray(discount)).tolist():
+    for d in np.atleast_1d(np.asarray(discount)).tolist():
         if not 0 < d <= 1:
             raise ValueError(f"discount: must be in (0, 1], got {d}")
 
@@ -110,11 +118,12 @@ def check_optimizer(name):
         )
 
 
-RUNS_AXIS = "runs"  # the vmapped axis of runs: rollouts skip ended chunks once all runs agree
-
-
 class TrainState(NamedTuple):
-    """The carry of one run from iteration to iteration."""
+    """The carry of R runs from iteration to iteration.
+
+    Parameters and optimizer state hold the runs on their last axis, where they meet each run's
+    episodes `[T, E, R]`; the keys are `[R, 2]`.
+    """
 
     policy_params: dict
     opt_state: optax.OptState
@@ -140,19 +149,64 @@ class TrainResult(NamedTuple):
 
 
 def reinforce_loss(policy_params, network, transitions, advantages):
-    """Mean over the alive steps of -advantage * log pi(a|s).
+    """Mean over the alive steps of -advantage * log pi(a|s); `[R]` for R runs on trailing axes.
 
     Its gradient is the book's: the gradient of the binary cross-entropy between P(left) and the
     action taken, weighted by the normalised return and averaged over every step of every episode.
     """
-    logits = network.apply(policy_params, transitions.obs)
+    logits = policies.forward(policy_params, transitions.obs, network.activation)
     log_probs = policies.log_prob(logits, transitions.action)
-    return -sums.pairwise_mean(advantages * log_probs, (0, 1), transitions.alive)
+    return -sums.invariant_mean(advantages * log_probs, (0, 1), transitions.alive)
+
+
+def loss_and_grad(policy_params, network, transitions, advantages):
+    """`reinforce_loss` and its gradient, taken over time in chunks of `rollout.CHUNK` steps.
+
+    A chunk's arrays stay in cache however many runs train at once, and the chunks after every
+    episode ended are skipped, as the rollout skips them. The sums add chunk after chunk, each
+    chunk in a fixed order, so they are still the same for a run alone as in a sweep.
+
+    Returns:
+      (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
+    """
+    num_steps = advantages.shape[0]
+    chunk = min(rollout.CHUNK, num_steps)
+    num_chunks = -(-num_steps // chunk)
+
+    def in_chunks(leaf):
+        pad = [(0, num_chunks * chunk - num_steps)] + [(0, 0)] * (leaf.ndim - 1)
+        return jnp.pad(leaf, pad).reshape(num_chunks, chunk, *leaf.shape[1:])
+
+    def chunk_loss(policy_params, transitions, advantages):
+        logits = policies.forward(policy_params, transitions.obs, network.activation)
+        terms = advantages * policies.log_prob(logits, transitions.action)
+        losses = -sums.invariant_sum(jnp.where(transitions.alive, terms, 0.0), (0, 1))
+        return losses.sum(), losses  # runs are independent: each run's gradient is its own
+
+    def play(policy_params, transitions, advantages):
+        (_, losses), grads = jax.value_and_grad(chunk_loss, has_aux=True)(
+            policy_params, transitions, advantages
+        )
+        return losses, grads
+
+    def skip(policy_params, transitions, advantages):
+        return jax.tree.map(jnp.zeros_like, jax.eval_shape(play, policy_params, transitions,
+                                                           advantages))
+
+    def one_chunk(totals, xs):
+        part = jax.lax.cond(jnp.any(xs[0].alive), play, skip, policy_params, *xs)
+        return jax.tree.map(jnp.add, totals, part), None
+
+    zeros = skip(policy_params, *jax.tree.map(lambda leaf: leaf[:chunk], (transitions, advantages)))
+    chunks = jax.tree.map(in_chunks, (transitions, advantages))
+    (loss, grads), _ = jax.lax.scan(one_chunk, zeros, chunks)
+    count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(loss.dtype), (0, 1)), 1)
+    return loss / count, jax.tree.map(lambda grad: grad / count, grads)
 
 
 def global_norm(tree):
-    """The L2 norm of every leaf together, summed pairwise so that it is batch-invariant."""
-    squares = [sums.pairwise_sum(jnp.square(leaf).ravel(), 0) for leaf in jax.tree.leaves(tree)]
+    """The L2 norm of every leaf together, summed in a fixed order so that it is batch-invariant."""
+    squares = [sums.invariant_sum(jnp.square(leaf).ravel(), 0) for leaf in jax.tree.leaves(tree)]
     return jnp.sqrt(sum(squares))
 
 
@@ -161,76 +215,122 @@ def make_optimizer(config, learning_rate):
 
 
 def init_run(config, key, hyperparams):
-    """The initial `TrainState` of one run."""
-    key, key_init = jax.random.split(key)
-    policy_params = policies.init_network(key_init, config.network)
+    """The initial policy parameters and optimizer state of one run."""
+    policy_params = policies.init_network(jax.random.split(key)[1], config.network)
     opt_state = make_optimizer(config, hyperparams.learning_rate).init(policy_params)
-    return TrainState(policy_params, opt_state, key)
+    return policy_params, opt_state
+
+
+def init_runs(config, keys, hyperparams):
+    """The initial `TrainState` of R runs, from their keys `[R, 2]` and `Hyperparams` `[R]`."""
+    policy_params, opt_state = jax.vmap(functools.partial(init_run, config), out_axes=-1)(
+        keys, hyperparams
+    )
+    return TrainState(policy_params, opt_state, jax.vmap(lambda k: jax.random.split(k)[0])(keys))
+
+
+def optimizer_step(config, grads, opt_state, policy_params, learning_rate):
+    """One optimizer step of one run: (policy_params, opt_state)."""
+    optimizer = make_optimizer(config, learning_rate)
+    updates, opt_state = optimizer.update(grads, opt_state, policy_params)
+    return optax.apply_updates(policy_params, updates), opt_state
 
 
 def iterate(config, train_state, hyperparams):
-    """One REINFORCE iteration of one run: play, discount, normalise, step the optimizer."""
-    network = config.network
-    key, key_rollout = jax.random.split(train_state.key)
+    """One REINFORCE iteration of R runs at once: play, discount, normalise, step the optimizer.
 
-    # Play the episodes with the current policy.
+    Args:
+      config: the `TrainConfig`.
+      train_state: `TrainState` of the R runs.
+      hyperparams: `Hyperparams` with `[R]` leaves.
+
+    Returns:
+      (`TrainState`, `Metrics` with `[R]` leaves)
+    """
+    network = config.network
+    key, key_rollout = rng.split(train_state.key)
+
+    # Play the episodes of every run with its current policy: [T, E, R] transitions.
     policy = policies.network_policy(network, train_state.policy_params)
     episodes = rollout.rollout(
-        key_rollout, policy, config.env_params, config.episodes, config.max_steps,
-        axis_name=RUNS_AXIS,
+        key_rollout, policy, config.env_params, config.episodes, config.max_steps
     )
     transitions = episodes.transitions
 
-    # Discounted returns, normalised over every step of every episode.
+    # Discounted returns, normalised over every step of every episode of a run.
     advantages = returns.discount_and_normalize_masked(
         transitions.reward, transitions.alive, hyperparams.discount
     )
 
     # One optimizer step on the REINFORCE loss.
-    loss, grads = jax.value_and_grad(reinforce_loss)(
-        train_state.policy_params, network, transitions, advantages
-    )
-    optimizer = make_optimizer(config, hyperparams.learning_rate)
-    updates, opt_state = optimizer.update(grads, train_state.opt_state, train_state.policy_params)
-    policy_params = optax.apply_updates(train_state.policy_params, updates)
+    loss, grads = loss_and_grad(train_state.policy_params, network, transitions, advantages)
+    # The step runs with the runs first: on the last axis, XLA's vectorised and scalar loops
+    # round a run's update differently for different numbers of runs.
+    runs_first = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, -1, 0))
+    runs_last = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, 0, -1))
+    policy_params, opt_state = runs_last(jax.vmap(functools.partial(optimizer_step, config))(
+        *runs_first((grads, train_state.opt_state, train_state.policy_params)),
+        hyperparams.learning_rate,
+    ))
 
     metrics = Metrics(
-        mean_return=episodes.returns.mean(),
-        min_return=episodes.returns.min(),
-        max_return=episodes.returns.max(),
-        mean_length=episodes.lengths.mean(),
+        mean_return=episodes.returns.mean(axis=0),
+        min_return=episodes.returns.min(axis=0),
+        max_return=episodes.returns.max(axis=0),
+        mean_length=episodes.lengths.mean(axis=0),
         loss=loss,
-        grad_norm=global_norm(grads),
+        grad_norm=jax.vmap(global_norm, in_axes=-1)(grads),
     )
     return TrainState(policy_params, opt_state, key), metrics
 
 
+class Program(NamedTuple):
+    """The compiled training of R runs at once, for one `TrainConfig`."""
+
+    init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
+    iterate: Callable  # (TrainState [R], Hyperparams [R]) -> (TrainState [R], Metrics [R])
+
+
 @functools.lru_cache(maxsize=32)
-def compiled_program(config, show_progress):
-    """The jitted training of R runs at once: `(keys [R], Hyperparams [R]) -> TrainResult [R]`.
+def compiled_program(config):
+    """The jitted `Program` of `config`; `iterate` consumes (donates) the state it is given."""
 
-    The scan over iterations is outermost and the vmap over runs inside it, so the progress
-    callback fires once per iteration with the mean return of every run.
+    return Program(
+        jax.jit(functools.partial(init_runs, config)),
+        jax.jit(functools.partial(iterate, config), donate_argnums=0),
+    )
+
+
+def run(program, iterations, parts, on_iteration=None):
+    """Trains each part's runs for `iterations` iterations, every part on its own device.
+
+    Args:
+      program: from `compiled_program`.
+      iterations: how many times to iterate.
+      parts: a list of (keys `[R_p, 2]`, `Hyperparams` `[R_p]`), each on the device that trains it.
+      on_iteration: optional `(iteration, mean_returns [sum of R_p]) -> None`, called on the host
+        for every iteration in order, while the next one is already training.
+
+    Returns:
+      One `TrainResult` per part, with numpy leaves `[R_p, ...]` and metrics `[R_p, iterations]`.
     """
-
-    def program(keys, hyperparams):
-        train_states = jax.vmap(functools.partial(init_run, config))(keys, hyperparams)
-
-        def one_iteration(train_states, iteration):
-            train_states, metrics = jax.vmap(
-                functools.partial(iterate, config), axis_name=RUNS_AXIS
-            )(train_states, hyperparams)
-            if show_progress:
-                progress.report(iteration, metrics.mean_return)
-            return train_states, metrics
-
-        train_states, metrics = jax.lax.scan(
-            one_iteration, train_states, jnp.arange(config.iterations)
-        )
-        # Metrics come out of the scan as [I, R]; runs first reads better.
-        return TrainResult(train_states.policy_params, jax.tree.map(jnp.transpose, metrics))
-
-    return jax.jit(program)
+    states = [program.init(keys, hyperparams) for keys, hyperparams in parts]
+    history = []
+    for iteration in range(iterations + 1):
+        if iteration < iterations:
+            stepped = [program.iterate(s, hp) for s, (_, hp) in zip(states, parts)]
+            states = [state for state, _ in stepped]
+            history.append([metrics for _, metrics in stepped])
+        if on_iteration is not None and iteration > 0:
+            shown = history[iteration - 1]
+            on_iteration(iteration - 1, np.concatenate([np.asarray(m.mean_return) for m in shown]))
+    results = []
+    for index, state in enumerate(jax.device_get(states)):
+        metrics = jax.device_get([part_metrics[index] for part_metrics in history])
+        stacked = jax.tree.map(lambda *leaves: np.stack(leaves, axis=-1), *metrics)
+        policy_params = jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), state.policy_params)
+        results.append(TrainResult(policy_params, stacked))
+    return results
 
 
 def run_keys(seeds):
@@ -248,8 +348,10 @@ def train(config=TrainConfig(), seed=0, show_progress=True):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32:
         raise ValueError(f"seed: must be an integer in [0, 2**32), got {seed!r}")
-    hyperparams = jax.tree.map(lambda v: jnp.asarray([v], jnp.float32), config.hyperparams)
-    with progress.bar(config.iterations, enabled=show_progress):
-        result = compiled_program(config, show_progress)(run_keys([seed]), hyperparams)
-        jax.block_until_ready(result)
+    hyperparams = jax.tree.map(lambda v: np.asarray([v], np.float32), config.hyperparams)
+    with progress.bar(config.iterations, enabled=show_progress) as on_iteration:
+        (result,) = run(
+            compiled_program(config), config.iterations, [(run_keys([seed]), hyperparams)],
+            on_iteration,
+        )
     return jax.tree.map(lambda leaf: leaf[0], result)

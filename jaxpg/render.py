@@ -174,7 +174,7 @@ def render_episode(policy, seed=0, env_params=cartpole.V1, max_steps=500):
     """Plays one episode with `policy` and draws it, from the first state to the last.
 
     Args:
-      policy: `(obs [E, 4], key) -> action [E]`, as `rollout.rollout` takes.
+      policy: `(obs [E, 4], u [E]) -> action [E]`, as `rollout.rollout` takes.
       seed: seeds the initial state and the policy's randomness.
       env_params: `CartPoleParams`.
       max_steps: the most steps drawn (the episode also ends when `env_params` ends it).

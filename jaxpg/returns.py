@@ -6,11 +6,14 @@ import numpy as np
 
 from jaxpg import sums
 
+UNROLL = 10
+
 
 def discount_masked(rewards, alive, discount_rate):
-    """Discounted returns of `[T, E]` rewards; 0 on the steps that are not alive.
+    """Discounted returns of `[T, E, ...]` rewards; 0 on the steps that are not alive.
 
-    G_t = r_t + discount_rate * G_{t+1}, computed with a reverse scan over time.
+    G_t = r_t + discount_rate * G_{t+1}, with a reverse scan over time, unrolled by `UNROLL` steps
+    so that a loop iteration is one fused kernel rather than a handful per step.
     """
     rewards = jnp.where(alive, rewards, 0.0)
 
@@ -18,19 +21,22 @@ def discount_masked(rewards, alive, discount_rate):
         ret = reward + discount_rate * future
         return ret, ret
 
-    _, returns = jax.lax.scan(accumulate, jnp.zeros_like(rewards[0]), rewards, reverse=True)
+    _, returns = jax.lax.scan(
+        accumulate, jnp.zeros_like(rewards[0]), rewards, reverse=True, unroll=UNROLL
+    )
     return jnp.where(alive, returns, 0.0)
 
 
 def normalize_masked(values, alive):
-    """`(values - mean) / std` over the alive entries (population std); 0 elsewhere.
+    """`(values - mean) / std` over the alive entries of `[T, E, ...]` (population std); 0 elsewhere.
 
+    Mean and std are over time and episodes, apart for each index of any trailing (run) axes.
     When the std is 0 (every alive value equal) the values are only centred, so nothing divides by 0.
     """
-    axes = tuple(range(values.ndim))
-    mean = sums.pairwise_mean(values, axes, alive)
+    axes = (0, 1)
+    mean = sums.invariant_mean(values, axes, alive)
     centred = jnp.where(alive, values - mean, 0.0)
-    std = jnp.sqrt(sums.pairwise_mean(jnp.square(centred), axes, alive))
+    std = jnp.sqrt(sums.invariant_mean(jnp.square(centred), axes, alive))
     return centred / jnp.where(std > 0, std, 1.0)
 
 

@@ -1,15 +1,20 @@
-"""Batched CartPole episodes: `vmap` over episodes, `lax.scan` over time.
+"""Batched CartPole episodes (`lax.scan` over time, every episode at once) and auto-reset streams.
 
-A policy is a function `(obs [E, 4], key) -> action [E]` acting on a whole batch of observations
-at once, so that it draws its random numbers in bulk, one key per step for all episodes.
+A policy for `rollout` is a function `(obs [E, 4], u [E]) -> action [E]` acting on a whole batch
+of observations at once; `u` is uniform in [0, 1), drawn in bulk by the rollout for every step.
+`rollout` also plays R independent runs at once (R keys, a policy with R sets of weights): every
+array then has a trailing run axis, which XLA vectorises over, and run r's episodes are exactly
+those it would play alone.
 """
 
+import functools
+import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from jaxpg import cartpole
+from jaxpg import cartpole, rng
 
 
 class Transition(NamedTuple):
@@ -36,12 +41,10 @@ def reset_batch(key, num, env_params):
     """`num` initial states drawn with one call to the random number generator.
 
     Returns:
-      (obs `[num, 4]`, state with `[num]` leaves)
+      (obs `[num, 4]`, state with `[num]` leaves); with R keys `[R, 2]`, `[num, R, 4]` and `[num, R]`
     """
-    values = jax.random.uniform(
-        key, (num, 4), minval=env_params.reset_low, maxval=env_params.reset_high
-    )
-    state = cartpole.CartPoleState.from_array(values)
+    values = rng.uniform(key, (num, 4), env_params.reset_low, env_params.reset_high)
+    state = cartpole.CartPoleState.from_array(jnp.moveaxis(values, 1, -1))
     return cartpole.observe(state), state
 
 
@@ -50,66 +53,62 @@ def _select(done, old, new):
     return jax.tree.map(lambda o, n: jnp.where(done, o, n), old, new)
 
 
-def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, axis_name=None):
+def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
     """Plays `num_episodes` episodes of at most `max_steps` steps with `policy`.
 
     Time runs in chunks of `CHUNK` steps; once every episode has ended, the remaining chunks are
     skipped, not simulated. Their transitions are all masked (obs of the final state, action 0).
 
     Args:
-      key: PRNG key for the initial states and the policy's randomness.
-      policy: `(obs [E, 4], key) -> action [E]`.
+      key: PRNG key for the initial states and the policy's uniforms; or R keys `[R, 2]` to play R
+        runs at once, each as its key alone would.
+      policy: `(obs [E, 4], u [E]) -> action [E]`; for R runs, `(obs [E, R, 4], u [E, R])`.
       env_params: `CartPoleParams`; an episode also ends when `env_params.max_steps` truncates it.
       num_episodes: E.
       max_steps: T, the length of the trajectory.
-      init_state: optional `CartPoleState` with `[E]` leaves, instead of random resets.
-      axis_name: under `vmap(..., axis_name=...)`, skip a chunk only once the episodes of every
-        vmapped rollout have ended, so the skip stays a real branch rather than a select.
+      init_state: optional `CartPoleState` with `[E]` (or `[E, R]`) leaves, instead of random resets.
 
     Returns:
-      `Episodes` with transitions of shape `[T, E, ...]`.
+      `Episodes` with transitions of shape `[T, E, ...]` (`[T, E, R, ...]` for R runs).
     """
-    key_reset, key_policy = jax.random.split(key)
+    key_reset, key_policy = rng.split(key)
     if init_state is None:
         _, init_state = reset_batch(key_reset, num_episodes, env_params)
+    runs = key.shape[:-1]
     chunk = min(CHUNK, max_steps)
     num_chunks = -(-max_steps // chunk)
-    step_keys = jax.random.split(key_policy, num_chunks * chunk).reshape(num_chunks, chunk, -1)
-    batched_step = jax.vmap(cartpole.step, in_axes=(0, 0, None))
+    noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes))
 
-    def one_step(carry, step_key):
+    def one_step(carry, u):
         state, done = carry
         obs = cartpole.observe(state)
-        action = policy(obs, step_key)
-        _, next_state, reward, terminated, truncated = batched_step(state, action, env_params)
+        action = policy(obs, u)
+        _, next_state, reward, terminated, truncated = cartpole.step(state, action, env_params)
         alive = ~done
         reward = jnp.where(alive, reward, 0.0)
         next_state = _select(done, state, next_state)
         done = done | terminated | truncated
         return (next_state, done), Transition(obs, action, reward, alive)
 
-    def play_chunk(carry, keys):
-        return jax.lax.scan(one_step, carry, keys)
+    def play_chunk(carry, noise):
+        return jax.lax.scan(one_step, carry, noise)
 
-    def skip_chunk(carry, keys):
+    def skip_chunk(carry, noise):
         state, done = carry
         obs = cartpole.observe(state)
         frozen = Transition(
             obs=jnp.broadcast_to(obs, (chunk, *obs.shape)),
-            action=jnp.zeros((chunk, num_episodes), jnp.int32),
-            reward=jnp.zeros((chunk, num_episodes), obs.dtype),
-            alive=jnp.zeros((chunk, num_episodes), bool),
+            action=jnp.zeros(noise.shape, jnp.int32),
+            reward=jnp.zeros(noise.shape, obs.dtype),
+            alive=jnp.zeros(noise.shape, bool),
         )
         return carry, frozen
 
-    def one_chunk(carry, keys):
-        all_done = jnp.all(carry[1])
-        if axis_name is not None:
-            all_done = jax.lax.pmin(all_done.astype(jnp.int32), axis_name) > 0
-        return jax.lax.cond(all_done, skip_chunk, play_chunk, carry, keys)
+    def one_chunk(carry, noise):
+        return jax.lax.cond(jnp.all(carry[1]), skip_chunk, play_chunk, carry, noise)
 
-    done = jnp.zeros(num_episodes, dtype=bool)
-    _, transitions = jax.lax.scan(one_chunk, (init_state, done), step_keys)
+    done = jnp.zeros((num_episodes, *runs), dtype=bool)
+    _, transitions = jax.lax.scan(one_chunk, (init_state, done), noise)
     transitions = jax.tree.map(
         lambda leaf: leaf.reshape(num_chunks * chunk, *leaf.shape[2:])[:max_steps], transitions
     )
@@ -147,8 +146,13 @@ def autoreset_step(key, stream_state, action, env_params):
     Returns:
       (obs `[N, 4]`, `StreamState`, reward `[N]`, terminated `[N]`, truncated `[N]`)
     """
+    _, fresh = reset_batch(key, stream_state.prev_done.shape[0], env_params)
+    return _autoreset(fresh, stream_state, action, env_params)
+
+
+def _autoreset(fresh, stream_state, action, env_params):
+    """`autoreset_step` with the states `fresh` `[N]` for the environments that reset."""
     prev_done = stream_state.prev_done
-    _, fresh = reset_batch(key, prev_done.shape[0], env_params)
     _, stepped, reward, terminated, truncated = jax.vmap(cartpole.step, in_axes=(0, 0, None))(
         stream_state.env_state, action, env_params
     )
@@ -166,34 +170,65 @@ def autoreset_step(key, stream_state, action, env_params):
 
 
 def random_policy(obs, key):
-    """Pushes left or right with equal probability, one random bit per environment."""
-    return jax.random.bernoulli(key, shape=obs.shape[:-1]).astype(jnp.int32)
+    """Pushes left or right with equal probability: 32 actions from each random 32-bit word."""
+    num = math.prod(obs.shape[:-1])
+    words = rng.bits(key, (-(-num // 32), 1))
+    actions = (words >> jnp.arange(32, dtype=jnp.uint32)) & 1
+    return actions.reshape(-1)[:num].reshape(obs.shape[:-1]).astype(jnp.int32)
+
+
+STREAM_CHUNK = 8  # steps per draw of reset states: shorter than CartPole's shortest episode
 
 
 def stream(key, policy, env_params, num_envs, num_steps):
     """Runs `num_envs` auto-resetting environments for `num_steps` steps.
+
+    The policy of a stream draws its own random numbers: `(obs [N, 4], key) -> action [N]`, such
+    as `random_policy`, which takes 32 actions from each random word.
+
+    Reset states are drawn once per environment every `STREAM_CHUNK` steps rather than every step:
+    an episode of the default CartPole lasts at least 8 steps, so an environment resets at most once
+    in a chunk. One that resets twice (with other `env_params`) draws again for that step.
 
     Returns:
       (`StreamState` at the end, `StreamStats` over the run)
     """
     key_reset, key_steps = jax.random.split(key)
     obs, state = stream_reset(key_reset, num_envs, env_params)
-    step_keys = jax.random.split(key_steps, num_steps)
 
     def one_step(carry, step_key):
-        obs, state, stats = carry
-        key_policy, key_reset = jax.random.split(step_key)
-        action = policy(obs, key_policy)
-        obs, state, reward, terminated, truncated = autoreset_step(
-            key_reset, state, action, env_params
+        obs, state, fresh, used, episodes, total = carry
+        again = state.prev_done & used
+        fresh = jax.lax.cond(
+            jnp.any(again),
+            lambda: _select(
+                again, reset_batch(jax.random.fold_in(step_key, 1), num_envs, env_params)[1], fresh
+            ),
+            lambda: fresh,
         )
-        ended = terminated | truncated
-        stats = StreamStats(
-            stats.episodes + ended.sum(),
-            stats.total_return + reward.sum(),
-        )
-        return (obs, state, stats), None
+        used = used | state.prev_done
+        action = policy(obs, step_key)
+        obs, state, reward, terminated, truncated = _autoreset(fresh, state, action, env_params)
+        episodes = episodes + (terminated | truncated)
+        return (obs, state, fresh, used, episodes, total + reward), None
 
-    stats = StreamStats(jnp.zeros((), jnp.int32), jnp.zeros(()))
-    (_, state, stats), _ = jax.lax.scan(one_step, (obs, state, stats), step_keys)
-    return state, stats
+    def one_chunk(carry, chunk_key, length):
+        key_fresh, key_steps = rng.split(chunk_key)
+        _, fresh = reset_batch(key_fresh, num_envs, env_params)
+        used = jnp.zeros(num_envs, dtype=bool)
+        obs, state, episodes, total = carry
+        (obs, state, _, _, episodes, total), _ = jax.lax.scan(
+            one_step, (obs, state, fresh, used, episodes, total), rng.split(key_steps, length)
+        )
+        return (obs, state, episodes, total), None
+
+    num_chunks, rest = divmod(num_steps, STREAM_CHUNK)
+    chunk_keys = rng.split(key_steps, num_chunks + 1)
+    carry = (obs, state, jnp.zeros(num_envs, jnp.int32), jnp.zeros(num_envs))
+    carry, _ = jax.lax.scan(
+        functools.partial(one_chunk, length=STREAM_CHUNK), carry, chunk_keys[:num_chunks]
+    )
+    if rest:
+        carry, _ = one_chunk(carry, chunk_keys[num_chunks], rest)
+    _, state, episodes, total = carry
+    return state, StreamStats(episodes.sum(), total.sum())

@@ -1,15 +1,18 @@
-"""Many training runs at once: seeds times a grid of learning rates and discounts, one program.
+"""Many training runs at once: seeds times a grid of learning rates and discounts.
 
 Every run of a sweep is the same compiled program as `train` runs alone, vmapped; seed i of a
-sweep therefore trains exactly as `train(config, seed=i)`.
+sweep therefore trains exactly as `train(config, seed=i)`. The runs are spread over every device
+of every process, and trained in chunks when a memory budget asks for it.
 """
 
 import itertools
+import numbers
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 
 from jaxpg import progress, reinforce
 
@@ -71,34 +74,170 @@ def check_seeds(seeds):
     return seeds.astype(np.uint32)
 
 
-def sweep(config=reinforce.TrainConfig(), seeds=range(64), grid=None, show_progress=True):
-    """Trains every seed under every grid setting in one compiled program.
+def check_memory_budget(memory_budget):
+    """Raises a ValueError unless `memory_budget` is None or a positive integer number of bytes."""
+    if memory_budget is None:
+        return
+    is_int = isinstance(memory_budget, numbers.Integral) and not isinstance(memory_budget, bool)
+    if not is_int or memory_budget < 1:
+        raise ValueError(
+            f"memory_budget: must be None or a positive integer number of bytes, got {memory_budget!r}"
+        )
+
+
+def sweep(config=reinforce.TrainConfig(), seeds=range(64), grid=None, show_progress=True,
+          memory_budget=None):
+    """Trains every seed under every grid setting, on every device, in chunks that fit a budget.
 
     Args:
       config: the `TrainConfig` every run shares.
       seeds: S distinct integer seeds.
       grid: optional `{"learning_rate": [...], "discount": [...]}`; the runs are its product.
+      show_progress: print a line per iteration (per chunk, when there are several).
+      memory_budget: optional bytes of memory one device may use for a chunk of runs (see
+        `fitting_chunk_size`); None trains all runs in one chunk. A budget below what one run
+        needs is a ValueError (raised after compiling one run's iteration, which measures it).
 
     Returns:
-      `SweepResult` with `[G, S, ...]` leaves and the `Summary`.
+      `SweepResult` with `[G, S, ...]` leaves and the `Summary`, on every process.
     """
     seeds = check_seeds(seeds)
     settings = expand_grid(config, grid)
+    check_memory_budget(memory_budget)
+    inputs = run_inputs(seeds, settings)
+    num_runs = inputs[0].shape[0]
+    program = reinforce.compiled_program(config)
+    if memory_budget is None:
+        chunk = chunk_size(num_runs, jax.device_count())
+    else:
+        chunk = fitting_chunk_size(program, config.iterations, num_runs, memory_budget)
+    result = None
+    for start in range(0, num_runs, chunk):
+        stop = min(start + chunk, num_runs)
+        # Every chunk has the same shape, so the program compiles once; the last one is padded
+        # with copies of the last run, whose results are dropped.
+        indices = np.minimum(np.arange(start, start + chunk), num_runs - 1)
+        label = f"runs {start + 1}-{stop} of {num_runs}" if chunk < num_runs else ""
+        with progress.bar(config.iterations, show_progress, label=label) as on_iteration:
+            part = train_on_devices(program, config.iterations, _take(inputs, indices), on_iteration)
+        if result is None:
+            result = jax.tree.map(lambda leaf: np.empty((num_runs, *leaf.shape[1:]), leaf.dtype), part)
+        for out, leaf in zip(jax.tree.leaves(result), jax.tree.leaves(part)):
+            out[start:stop] = leaf[: stop - start]
     num_settings, num_seeds = len(settings), seeds.size
-    # Runs are laid out setting-major: run g * S + s is seed s under setting g.
-    keys = jnp.tile(reinforce.run_keys(seeds), (num_settings, 1))
-    hyperparams = reinforce.Hyperparams(
-        *(
-            jnp.repeat(jnp.asarray([s[name] for s in settings], jnp.float32), num_seeds)
-            for name in GRID_FIELDS
-        )
-    )
-    with progress.bar(config.iterations, enabled=show_progress):
-        result = reinforce.compiled_program(config, show_progress)(keys, hyperparams)
-        result = jax.device_get(result)
     result = jax.tree.map(lambda leaf: leaf.reshape(num_settings, num_seeds, *leaf.shape[1:]), result)
     summary = summarize(result.metrics.mean_return, config.solved_return)
     return SweepResult(seeds, settings, result.policy_params, result.metrics, summary)
+
+
+def run_inputs(seeds, settings):
+    """The key and hyperparameters of every run, on the host, setting-major.
+
+    Returns:
+      (keys `[R, 2]` uint32, `Hyperparams` with `[R]` float32 leaves) as numpy arrays, where
+      R = G * S and run g * S + s is seed s under setting g.
+    """
+    keys = np.tile(np.asarray(reinforce.run_keys(seeds)), (len(settings), 1))
+    hyperparams = reinforce.Hyperparams(**{
+        name: np.repeat(np.asarray([s[name] for s in settings], np.float32), seeds.size)
+        for name in GRID_FIELDS
+    })
+    return keys, hyperparams
+
+
+def _take(tree, index):
+    """`tree` with every leaf indexed by `index`: the runs it selects."""
+    return jax.tree.map(lambda leaf: leaf[index], tree)
+
+
+def train_on_devices(program, iterations, inputs, on_iteration=None):
+    """Trains runs `[C]`, a multiple of the device count, on every device of every process.
+
+    Process p trains the p-th of `jax.process_count()` equal blocks of the runs, each of its
+    devices an equal share of that block. Every device runs the one-device program on its own runs:
+    one program partitioned across devices is compiled with other (equally valid) floating-point
+    rewrites, and seed i would no longer train bit for bit as seed i alone.
+
+    Args:
+      program: `reinforce.compiled_program(config)`.
+      iterations: how many iterations to train.
+      inputs: (keys `[C, 2]`, `Hyperparams` `[C]`) as numpy arrays, the same on every process.
+      on_iteration: optional `(iteration, mean_returns) -> None` for this process's runs.
+
+    Returns:
+      `TrainResult` with numpy leaves `[C, ...]`, on every process.
+    """
+    devices = jax.local_devices()
+    per_process = inputs[0].shape[0] // jax.process_count()
+    per_device = per_process // len(devices)
+    first = jax.process_index() * per_process
+    shares = [slice(first + i * per_device, first + (i + 1) * per_device) for i in range(len(devices))]
+    parts = [jax.device_put(_take(inputs, share), device) for share, device in zip(shares, devices)]
+    local = reinforce.run(program, iterations, parts, on_iteration)
+    local = jax.tree.map(lambda *leaves: np.concatenate(leaves), *local)
+    return multihost_utils.process_allgather(local, tiled=True)
+
+
+def device_bytes(program, iterations, num_runs):
+    """Device memory that training `num_runs` runs for `iterations` iterations on one device needs.
+
+    XLA's buffer assignment for one iteration of `program` (its arguments, among them the training
+    state; outputs; temporaries; generated code), from the compiled program's
+    `memory_analysis()`, plus every iteration's metrics, which stay on the device until the end.
+    It compiles for this process's first device, as training does, so that training reuses it.
+    """
+    device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    keys = jax.ShapeDtypeStruct((num_runs, 2), jnp.uint32, sharding=device)
+    hyperparams = reinforce.Hyperparams(
+        *[jax.ShapeDtypeStruct((num_runs,), jnp.float32, sharding=device)] * 2
+    )
+    state = jax.tree.map(
+        lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=device),
+        jax.eval_shape(program.init, keys, hyperparams),
+    )
+    _, metrics = jax.eval_shape(program.iterate, state, hyperparams)
+    stats = program.iterate.lower(state, hyperparams).compile().memory_analysis()
+    iteration = (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
+                 + stats.generated_code_size_in_bytes - stats.alias_size_in_bytes)
+    history = iterations * sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(metrics))
+    return iteration + history
+
+
+def fitting_chunk_size(program, iterations, num_runs, memory_budget):
+    """Runs per chunk such that each device's share, as XLA compiles it, fits `memory_budget` bytes.
+
+    The first guess gives every run what one run needs; the guess's own program is then compiled
+    and measured, and the chunk shrinks while it does not fit: XLA lays out programs of different
+    sizes differently, so their bytes do not grow exactly in proportion to their runs.
+    """
+    num_devices = jax.device_count()
+    needed = device_bytes(program, iterations, 1)
+    if memory_budget < needed:
+        raise ValueError(
+            f"memory_budget: {memory_budget} bytes is less than one run needs on a device "
+            f"({needed} bytes with this config); allowed: None or at least {needed}"
+        )
+    max_per_device = memory_budget // needed
+    while True:
+        size = chunk_size(num_runs, num_devices, max_per_device)
+        per_device = size // num_devices
+        used = device_bytes(program, iterations, per_device)
+        if used <= memory_budget:
+            return size
+        max_per_device = max(1, per_device * memory_budget // used)
+
+
+def chunk_size(num_runs, num_devices, max_per_device=None):
+    """Runs per chunk: a multiple of `num_devices`, at most `max_per_device` per device.
+
+    Of the sizes that need the fewest chunks, the smallest, so that the last chunk needs the least
+    padding.
+    """
+    per_device = -(-num_runs // num_devices)
+    if max_per_device is not None:
+        num_chunks = -(-per_device // max_per_device)
+        per_device = -(-per_device // num_chunks)
+    return per_device * num_devices
 
 
 def summarize(mean_return, solved_return):

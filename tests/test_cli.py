@@ -32,7 +32,8 @@ def test_train_writes_results_that_evaluate_loads(tmp_path, capsys):
 
 def test_sweep_writes_summary_and_picture(tmp_path):
     out = tmp_path / "sweep"
-    assert cli.main(["sweep", *SMALL, "--seeds", "3", "--lr", "0.01,0.02", "--out", str(out)]) == 0
+    assert cli.main(["sweep", *SMALL, "--seeds", "3", "--lr", "0.01,0.02", "--memory-budget", "1G",
+                     "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert len(summary["grid"]) == 2 and len(summary["fraction_solved"]) == 2
     with np.load(out / "metrics.npz") as npz:
@@ -52,6 +53,8 @@ def test_sweep_writes_summary_and_picture(tmp_path):
     (["train", "--hidden", "x"], "hidden"),
     (["sweep", "--seeds", "0"], "seeds"),
     (["sweep", "--discount", "0.9,2"], "discount"),
+    (["sweep", "--memory-budget", "2X"], "--memory-budget"),
+    (["sweep", "--coordinator", "localhost:1234"], "coordinator"),
     (["evaluate", "--backend", "mujoco"], "backend"),
     (["evaluate", "--policy", "/nonexistent/dir"], "policy"),
     (["evaluate", "--env", "CartPole-v7"], "env"),

@@ -36,7 +36,8 @@ def test_dense_and_its_gradient_equal_a_matrix_product():
         return jnp.sum(jnp.tanh(x @ kernel + bias))
 
     def ours(x, kernel, bias):
-        return jnp.sum(jnp.tanh(policies.dense(x, kernel, bias)))
+        features = jnp.moveaxis(x, -1, 0)  # dense takes the features first
+        return jnp.sum(jnp.tanh(jnp.moveaxis(policies.dense(features, kernel, bias), 0, -1)))
 
     chex.assert_trees_all_close(ours(x, kernel, bias), reference(x, kernel, bias), rtol=1e-5)
     chex.assert_trees_all_close(
@@ -51,9 +52,23 @@ def test_log_prob_and_sampling_agree():
     p_left = jax.nn.sigmoid(logit)
     np.testing.assert_allclose(jnp.exp(policies.log_prob(logit, 0)), p_left, rtol=1e-6)
     np.testing.assert_allclose(jnp.exp(policies.log_prob(logit, 1)), 1 - p_left, rtol=1e-6)
-    actions = policies.sample_action(jnp.full((20000,), logit), jax.random.PRNGKey(0))
+    u = jax.random.uniform(jax.random.PRNGKey(0), (20000,))
+    actions = policies.sample_action(jnp.full((20000,), logit), u)
     # 20,000 Bernoulli draws: the share of left pushes is within 4 standard errors of P(left).
     assert abs(float(np.mean(actions == 0)) - float(p_left)) < 4 * np.sqrt(0.25 / 20000)
+
+
+def test_forward_equals_the_module_also_for_many_runs_at_once():
+    network = policies.PolicyNetwork(hidden=(5, 3), activation="tanh")
+    keys = jax.random.split(jax.random.PRNGKey(2), 3)
+    runs = [policies.init_network(key, network) for key in keys]
+    obs = jax.random.normal(jax.random.PRNGKey(3), (6, 3, 4))  # [E, R, 4]
+    stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves, axis=-1), *runs)  # runs last
+    together = policies.forward(stacked, obs, "tanh")
+    for r, params in enumerate(runs):
+        alone = network.apply(params, obs[:, r])
+        np.testing.assert_array_equal(policies.forward(params, obs[:, r], "tanh"), alone)
+        np.testing.assert_allclose(together[:, r], alone, rtol=1e-6)
 
 
 @pytest.mark.parametrize("hidden, activation, match", [((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((), "elu", "hidden")])

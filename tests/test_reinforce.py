@@ -42,9 +42,14 @@ def test_gradient_equals_the_books_algorithm():
     transitions = episodes.transitions
     assert int(transitions.alive.sum()) > 40  # several steps of several episodes
     advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
+    book = _book_gradient(network, policy_params, transitions)
     ours = jax.grad(reinforce.reinforce_loss)(policy_params, network, transitions, advantages)
-    chex.assert_trees_all_close(ours, _book_gradient(network, policy_params, transitions),
-                                rtol=2e-4, atol=1e-6)
+    chex.assert_trees_all_close(ours, book, rtol=2e-4, atol=1e-6)
+    # The chunked loss and gradient that training uses are the same.
+    loss, chunked = reinforce.loss_and_grad(policy_params, network, transitions, advantages)
+    chex.assert_trees_all_close(chunked, book, rtol=2e-4, atol=1e-6)
+    np.testing.assert_allclose(
+        loss, reinforce.reinforce_loss(policy_params, network, transitions, advantages), rtol=1e-5)
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +83,7 @@ def test_compiles_once_per_config():
     first = train(config, seed=0, show_progress=False)
     second = train(config, seed=1, show_progress=False)
     assert reinforce.compiled_program.cache_info().misses == 1
-    assert reinforce.compiled_program(config, False)._cache_size() == 1
+    assert reinforce.compiled_program(config).iterate._cache_size() == 1
     assert not np.array_equal(first.metrics.mean_return, second.metrics.mean_return) or \
         not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first.policy_params), jax.tree.leaves(second.policy_params)))
 
@@ -89,12 +94,13 @@ def test_progress_reports_every_iteration(capsys):
 
     config = TrainConfig(iterations=5, episodes=2, max_steps=10)
     stream = io.StringIO()
-    with progress.bar(config.iterations, stream=stream):
-        jax.block_until_ready(reinforce.compiled_program(config, True)(
-            reinforce.run_keys([0]), jax.tree.map(lambda v: jnp.asarray([v], jnp.float32), config.hyperparams)))
+    hyperparams = jax.tree.map(lambda v: jnp.asarray([v], jnp.float32), config.hyperparams)
+    with progress.bar(config.iterations, stream=stream) as on_iteration:
+        (result,) = reinforce.run(reinforce.compiled_program(config), config.iterations,
+                                  [(reinforce.run_keys([0]), hyperparams)], on_iteration)
     lines = stream.getvalue().splitlines()
     assert [line.split(",")[0] for line in lines] == [f"Iteration: {i}/5" for i in range(1, 6)]
-    assert "mean rewards:" in lines[-1]
+    assert lines[-1].split(",")[1].startswith(f" mean rewards: {result.metrics.mean_return[0, -1]:.1f}")
 
 
 @pytest.mark.parametrize("field, value, match", [
@@ -117,3 +123,21 @@ def test_any_optax_optimizer_by_name():
     result = train(TrainConfig(iterations=2, episodes=2, max_steps=10, optimizer="sgd",
                                hidden=(3, 3), activation="tanh"), seed=0, show_progress=False)
     assert np.all(np.isfinite(result.metrics.loss))
+
+
+def test_a_run_trains_the_same_beside_a_thousand_others():
+    """Sums and layouts are batch-invariant up to large R, not only at the 64 seeds of a sweep."""
+    config = TrainConfig(iterations=3, episodes=3, max_steps=30)
+    program = reinforce.compiled_program(config)
+
+    def train_runs(seeds):
+        hyperparams = jax.tree.map(lambda v: np.full(len(seeds), v, np.float32), config.hyperparams)
+        (result,) = reinforce.run(program, config.iterations,
+                                  [(reinforce.run_keys(seeds), hyperparams)])
+        return result
+
+    many = train_runs(np.arange(1030))
+    for seed in (0, 7, 1029):
+        alone = train_runs([seed])
+        chex.assert_trees_all_equal(jax.tree.map(lambda leaf: leaf[seed], many),
+                                    jax.tree.map(lambda leaf: leaf[0], alone))

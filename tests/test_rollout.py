@@ -139,3 +139,25 @@ def test_stream_accounts_for_every_step():
     resets = int(stats.episodes) - int(state.prev_done.sum())
     assert int(stats.episodes) > num_envs  # random pushes fall in ~20 steps: many episodes
     assert float(stats.total_return) == num_envs * num_steps - resets
+
+
+def test_stream_redraws_when_an_environment_resets_twice_in_a_chunk():
+    """Episodes of one or two steps reset several times per chunk of STREAM_CHUNK steps."""
+    num_envs, num_steps = 8, 3 * rollout.STREAM_CHUNK + 3
+    env_params = cartpole.V1.replace(theta_threshold_radians=0.01, x_threshold=0.01)
+    stream = jax.jit(rollout.stream, static_argnums=(1, 3, 4))
+    state, stats = stream(jax.random.PRNGKey(1), rollout.random_policy, env_params,
+                          num_envs, num_steps)
+    resets = int(stats.episodes) - int(state.prev_done.sum())
+    assert resets > num_envs * num_steps // 4  # most chunks reset every environment twice or more
+    assert float(stats.total_return) == num_envs * num_steps - resets
+
+
+def test_many_runs_at_once_play_as_each_run_alone():
+    keys = jax.random.split(jax.random.PRNGKey(2), 3)
+    policy = lambda obs, u: (u > 0.5).astype(jnp.int32)  # noqa: E731
+    together = rollout.rollout(keys, policy, LIMITED, 4, 30)
+    for r, key in enumerate(keys):
+        alone = rollout.rollout(key, policy, LIMITED, 4, 30)
+        chex.assert_trees_all_equal(jax.tree.map(lambda leaf: leaf[:, :, r], together.transitions),
+                                    alone.transitions)

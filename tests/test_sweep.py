@@ -1,12 +1,15 @@
-"""Sweeps: seed i of a sweep is `train(seed=i)` exactly; summary statistics; bad input."""
+"""Sweeps: seed i of a sweep is `train(seed=i)` exactly; chunks; summary statistics; bad input."""
+
+import importlib
 
 import chex
 import jax
 import numpy as np
 import pytest
+from conftest import SMALL_CONFIG, SMALL_GRID, SMALL_SEEDS
 
-from jaxpg import TrainConfig, train
-from jaxpg.sweep import summarize, sweep
+from jaxpg import TrainConfig, reinforce, train
+from jaxpg.sweep import chunk_size, device_bytes, fitting_chunk_size, summarize, sweep
 
 
 @pytest.fixture(scope="module")
@@ -39,6 +42,48 @@ def test_grid_runs_every_setting_and_matches_train():
     chex.assert_trees_all_equal(jax.tree.map(lambda a: a[2, 1], swept.metrics), alone.metrics)
 
 
+def test_chunked_sweep_equals_one_chunk_and_compiles_once(small_sweep, capsys):
+    program = reinforce.compiled_program(SMALL_CONFIG)
+    budget = 3 * device_bytes(program, SMALL_CONFIG.iterations, 1)
+    compiled_before = program.iterate._cache_size()
+    chunked = sweep(SMALL_CONFIG, SMALL_SEEDS, SMALL_GRID, memory_budget=budget)
+    assert program.iterate._cache_size() == compiled_before + 1
+    chex.assert_trees_all_equal(chunked, small_sweep)
+    # Ten runs, three at a time: the last chunk is run 10 and two copies of it.
+    last_lines = [line for line in capsys.readouterr().err.splitlines() if "Iteration: 3/3" in line]
+    assert [line.split(":")[0] for line in last_lines] == [
+        "runs 1-3 of 10", "runs 4-6 of 10", "runs 7-9 of 10", "runs 10-10 of 10"]
+    assert all("(mean of 3 runs)" in line for line in last_lines)
+
+
+def test_budget_below_one_run_is_one_line_error():
+    needed = device_bytes(reinforce.compiled_program(SMALL_CONFIG), SMALL_CONFIG.iterations, 1)
+    with pytest.raises(ValueError, match=rf"^memory_budget: .* allowed: None or at least {needed}$"):
+        sweep(SMALL_CONFIG, seeds=[0], memory_budget=needed - 1)
+
+
+def test_chunk_shrinks_until_its_program_fits(monkeypatch):
+    # Bytes that grow faster than the runs: n runs need 100 n (1 + n / 10).
+    sweep_module = importlib.import_module("jaxpg.sweep")  # `jaxpg.sweep` names the function
+    monkeypatch.setattr(sweep_module, "device_bytes",
+                        lambda program, iterations, n: 100 * n * (1 + n / 10))
+    # One run needs 110, so the first guess is 9 runs, balanced to 7 (20 runs in 3 chunks), which
+    # need 1190; 7 * 1000 // 1190 = 5 per chunk need 750.
+    assert fitting_chunk_size(None, 3, num_runs=20, memory_budget=1000) == 5
+
+
+@pytest.mark.parametrize("num_runs, num_devices, max_per_device, size", [
+    (10, 1, None, 10),   # one chunk
+    (5, 2, None, 6),     # padded to a multiple of the devices
+    (1024, 1, 1000, 512),  # two chunks, halves rather than 1000 + 24
+    (10, 1, 3, 3),       # four chunks: ceil(10 / 4) = 3
+    (10, 2, 2, 4),       # five runs per device, at most two: chunks of 2, 2 and 1 (+1 padding)
+    (3, 4, 1, 4),        # fewer runs than devices
+])
+def test_chunk_size(num_runs, num_devices, max_per_device, size):
+    assert chunk_size(num_runs, num_devices, max_per_device) == size
+
+
 def test_summary_statistics():
     # Two seeds, 12 iterations: seed 0 reaches 200 from iteration 2 on, seed 1 stays at 10.
     mean_return = np.array([[[0, 0] + [200] * 10, [10] * 12]], dtype=float)
@@ -58,6 +103,9 @@ def test_summary_statistics():
     (dict(grid={"lr": [0.1]}), "grid"),
     (dict(grid={"discount": [0.0]}), "discount"),
     (dict(grid={"learning_rate": [-1.0]}), "learning_rate"),
+    (dict(memory_budget=0), "memory_budget"),
+    (dict(memory_budget=2.5e9), "memory_budget"),
+    (dict(memory_budget="2G"), "memory_budget"),
 ])
 def test_bad_sweeps_are_rejected(kwargs, match):
     with pytest.raises(ValueError, match=match):
