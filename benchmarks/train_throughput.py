@@ -1,15 +1,18 @@
 """Compile time, run time and environment steps per second of REINFORCE training, jaxpg vs numpy.
 
-jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) as one compiled
-program, `reinforce.compiled_program`; compilation (`.lower(...).compile()`) is timed apart from
-the runs. The numpy book implementation (`book_numpy.py`: one seed, one step at a time on
-Gymnasium's CartPole-v1) runs in the same process for scale.
+jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) at once with
+`reinforce.run`, one compiled iteration program called per iteration; compiling its two programs
+(`.lower(...).compile()` of `init` and `iterate`) is timed apart from the runs, which follow one
+untimed warm-up run. The numpy book implementation (`book_numpy.py`: one seed, one step at a
+time on Gymnasium's CartPole-v1) runs in the same process for scale.
 
-Two step counts:
+Step counts:
 - simulated steps: steps inside an episode before it ended (sum over runs and iterations of
   mean_length * episodes); the only kind the numpy trainer takes.
-- padded steps: iterations * episodes * max_steps * R, what jaxpg's fixed-horizon scan computes
-  (steps after an episode ended are masked, not skipped).
+- padded steps: iterations * episodes * max_steps * R, the fixed horizon of every iteration.
+- skipped: the share of padded steps jaxpg never computes, because every episode of every run in
+  a block of `reinforce.CPU_BLOCK` runs had ended before their chunk of `rollout.CHUNK` steps
+  (from each block's longest episode in each iteration).
 
 Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
 
@@ -25,7 +28,7 @@ import common
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import reinforce
+from jaxpg import reinforce, rollout
 
 
 def hyperparams_for(config, num_runs):
@@ -43,18 +46,41 @@ def step_counts(config, num_runs, mean_lengths):
     return simulated, padded
 
 
+def skipped_fraction(config, max_lengths):
+    """Share of padded steps in chunks after every episode ended; `max_lengths` `[R, I]`."""
+    chunk = min(rollout.CHUNK, config.max_steps)
+    computed = 0.0
+    for start in range(0, max_lengths.shape[0], reinforce.CPU_BLOCK):
+        block = max_lengths[start : start + reinforce.CPU_BLOCK]
+        longest = np.max(block, axis=0)  # a block skips a chunk once all its episodes ended
+        steps = np.minimum(np.ceil(longest / chunk) * chunk, config.max_steps)
+        computed += float(np.sum(steps)) * block.shape[0]
+    return 1.0 - computed / (config.max_steps * config.iterations * max_lengths.shape[0])
+
+
 def measure_jaxpg(config, num_runs, repeats):
-    """Compiles the training of `num_runs` seeds, then times `repeats` runs (median)."""
+    """Compiles the training of `num_runs` seeds, runs it once, then times `repeats` runs."""
     keys = reinforce.run_keys(np.arange(num_runs))
     hyperparams = hyperparams_for(config, num_runs)
-    program = reinforce.compiled_program(config, show_progress=False)
-    compiled, compile_times = common.compile_jitted(program, keys, hyperparams)
-    timing, result = common.time_calls(compiled, keys, hyperparams, repeats=repeats)
+    program = reinforce.compiled_program(config)
+    _, init_times = common.compile_jitted(program.init, keys, hyperparams)
+    _, compile_times = common.compile_jitted(
+        program.iterate, program.init(keys, hyperparams), hyperparams
+    )
+    parts = [(keys, hyperparams)]
+    reinforce.run(program, config.iterations, parts)  # warm-up: fills jit's own cache
+    timing, (result,) = common.time_calls(
+        reinforce.run, program, config.iterations, parts, repeats=repeats
+    )
     metrics = result.metrics
     simulated, padded = step_counts(config, num_runs, np.asarray(metrics.mean_length))
+    # With a reward of 1 per step, an episode's return is its length.
+    skipped = skipped_fraction(config, np.asarray(metrics.max_return))
     return _row("jaxpg", num_runs, config.iterations, timing["median_s"], simulated, padded,
                 np.mean(np.asarray(metrics.mean_return)[:, -1]),
-                times_s=timing["times_s"], **compile_times)
+                times_s=timing["times_s"], skipped_fraction=skipped,
+                lower_s=init_times["lower_s"] + compile_times["lower_s"],
+                compile_s=init_times["compile_s"] + compile_times["compile_s"])
 
 
 def measure_book(config, iterations, env_id):
@@ -131,7 +157,7 @@ def main():
         _print_progress(rows[-1])
 
     columns = ["impl", "n", "iterations", "lower_s", "compile_s", "run_s", "steps_per_s",
-               "padded_steps_per_s", "final_mean_return", "peak_rss_mib"]
+               "padded_steps_per_s", "skipped_fraction", "final_mean_return", "peak_rss_mib"]
     common.print_table(rows, columns, title="steps/s = simulated steps / run_s (median run)")
     book = [row for row in rows if row["impl"] == "book-numpy"]
     if book and book[0]["extrapolated"]:

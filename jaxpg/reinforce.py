@@ -11,9 +11,12 @@ without callbacks can be kept in JAX's persistent compilation cache, so a second
 compile again.
 """
 
+import concurrent.futures
 import dataclasses
 import functools
 import inspect
+import os
+import threading
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -291,46 +294,106 @@ class Program(NamedTuple):
     iterate: Callable  # (TrainState [R], Hyperparams [R]) -> (TrainState [R], Metrics [R])
 
 
-@functools.lru_cache(maxsize=32)
 def compiled_program(config):
-    """The jitted `Program` of `config`; `iterate` consumes (donates) the state it is given."""
+    """The jitted `Program` of `config`; `iterate` consumes (donates) the state it is given.
 
+    Configs that differ only in how many iterations run, or in what counts as solved, share one.
+    """
+    return _program(dataclasses.replace(config, iterations=1, solved_return=0.0))
+
+
+@functools.lru_cache(maxsize=32)
+def _program(config):
     return Program(
         jax.jit(functools.partial(init_runs, config)),
         jax.jit(functools.partial(iterate, config), donate_argnums=0),
     )
 
 
+CPU_BLOCK = 128  # runs a CPU trains together: their [T, E, R] arrays stay in its caches
+
+
 def run(program, iterations, parts, on_iteration=None):
     """Trains each part's runs for `iterations` iterations, every part on its own device.
+
+    On a CPU a part trains in blocks of at most `CPU_BLOCK` runs, spread over one thread per core:
+    larger arrays no longer fit in the caches, and XLA runs such small programs on the thread
+    that calls them. Runs train alike in any batch, so the blocks change nothing in the results.
 
     Args:
       program: from `compiled_program`.
       iterations: how many times to iterate.
       parts: a list of (keys `[R_p, 2]`, `Hyperparams` `[R_p]`), each on the device that trains it.
       on_iteration: optional `(iteration, mean_returns [sum of R_p]) -> None`, called on the host
-        for every iteration in order, while the next one is already training.
+        for every iteration in order, while later ones are already training.
 
     Returns:
       One `TrainResult` per part, with numpy leaves `[R_p, ...]` and metrics `[R_p, iterations]`.
     """
-    states = [program.init(keys, hyperparams) for keys, hyperparams in parts]
-    history = []
-    for iteration in range(iterations + 1):
-        if iteration < iterations:
-            stepped = [program.iterate(s, hp) for s, (_, hp) in zip(states, parts)]
-            states = [state for state, _ in stepped]
-            history.append([metrics for _, metrics in stepped])
-        if on_iteration is not None and iteration > 0:
-            shown = history[iteration - 1]
-            on_iteration(iteration - 1, np.concatenate([np.asarray(m.mean_return) for m in shown]))
+    blocks, owners = [], []
+    for index, part in enumerate(parts):
+        for block in _blocks(part):
+            blocks.append(block)
+            owners.append(index)
+    history = [[None] * len(blocks) for _ in range(iterations)]
+    finals = [None] * len(blocks)
+    num_workers = min(len(blocks), os.cpu_count() or 1)
+    finished = [0] * iterations  # workers that dispatched each iteration
+    failed = []  # workers that raised
+    progress_made = threading.Condition()
+
+    def train_blocks(indices):
+        try:
+            states = {i: program.init(*blocks[i]) for i in indices}
+            for iteration in range(iterations):
+                for i in indices:
+                    states[i], history[iteration][i] = program.iterate(states[i], blocks[i][1])
+                with progress_made:
+                    finished[iteration] += 1
+                    progress_made.notify_all()
+            for i in indices:
+                finals[i] = jax.device_get(states[i])
+        except BaseException:
+            with progress_made:
+                failed.append(indices)
+                progress_made.notify_all()
+            raise
+
+    with concurrent.futures.ThreadPoolExecutor(num_workers) as pool:
+        workers = [pool.submit(train_blocks, range(w, len(blocks), num_workers))
+                   for w in range(num_workers)]
+        for iteration in range(iterations if on_iteration is not None else 0):
+            with progress_made:
+                progress_made.wait_for(lambda: finished[iteration] == num_workers or failed)
+            if finished[iteration] < num_workers:
+                break  # a worker failed; its error is raised below
+            shown = [np.asarray(m.mean_return) for m in history[iteration]]
+            on_iteration(iteration, np.concatenate(shown))
+        for worker in workers:
+            worker.result()
+
     results = []
-    for index, state in enumerate(jax.device_get(states)):
-        metrics = jax.device_get([part_metrics[index] for part_metrics in history])
+    for index in range(len(parts)):
+        mine = [i for i, owner in enumerate(owners) if owner == index]
+        metrics = jax.device_get([[history[t][i] for i in mine] for t in range(iterations)])
+        metrics = [jax.tree.map(lambda *leaves: np.concatenate(leaves), *m) for m in metrics]
         stacked = jax.tree.map(lambda *leaves: np.stack(leaves, axis=-1), *metrics)
-        policy_params = jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), state.policy_params)
-        results.append(TrainResult(policy_params, stacked))
+        params = jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=-1),
+                              *[finals[i].policy_params for i in mine])
+        results.append(TrainResult(jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), params),
+                                   stacked))
     return results
+
+
+def _blocks(part):
+    """A part's runs in blocks of at most `CPU_BLOCK` on a CPU; the whole part elsewhere."""
+    keys = part[0]
+    device = next(iter(keys.devices())) if isinstance(keys, jax.Array) else jax.devices()[0]
+    num_runs = keys.shape[0]
+    if device.platform != "cpu" or num_runs <= CPU_BLOCK:
+        return [part]
+    return [jax.tree.map(lambda leaf: leaf[start : start + CPU_BLOCK], part)
+            for start in range(0, num_runs, CPU_BLOCK)]
 
 
 def run_keys(seeds):

@@ -1,5 +1,7 @@
 """REINFORCE: the book's gradient computed literally, training quality, and bad settings."""
 
+import dataclasses
+
 import chex
 import jax
 import jax.numpy as jnp
@@ -79,10 +81,11 @@ def test_a_rerun_is_bit_identical(book_run):
 
 def test_compiles_once_per_config():
     config = TrainConfig(iterations=2, episodes=2, max_steps=10)
-    reinforce.compiled_program.cache_clear()
+    reinforce._program.cache_clear()
     first = train(config, seed=0, show_progress=False)
     second = train(config, seed=1, show_progress=False)
-    assert reinforce.compiled_program.cache_info().misses == 1
+    train(dataclasses.replace(config, iterations=3), seed=0, show_progress=False)
+    assert reinforce._program.cache_info().misses == 1
     assert reinforce.compiled_program(config).iterate._cache_size() == 1
     assert not np.array_equal(first.metrics.mean_return, second.metrics.mean_return) or \
         not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first.policy_params), jax.tree.leaves(second.policy_params)))
@@ -141,3 +144,29 @@ def test_a_run_trains_the_same_beside_a_thousand_others():
         alone = train_runs([seed])
         chex.assert_trees_all_equal(jax.tree.map(lambda leaf: leaf[seed], many),
                                     jax.tree.map(lambda leaf: leaf[0], alone))
+
+
+def test_blocks_on_several_threads_report_every_iteration_in_order():
+    config = TrainConfig(iterations=4, episodes=2, max_steps=10)
+    num_runs = 3 * reinforce.CPU_BLOCK + 5  # four blocks over the threads
+    hyperparams = jax.tree.map(lambda v: np.full(num_runs, v, np.float32), config.hyperparams)
+    reported = []
+    (result,) = reinforce.run(reinforce.compiled_program(config), config.iterations,
+                              [(reinforce.run_keys(np.arange(num_runs)), hyperparams)],
+                              lambda iteration, means: reported.append((iteration, means)))
+    assert [iteration for iteration, _ in reported] == [0, 1, 2, 3]
+    for iteration, means in reported:
+        np.testing.assert_array_equal(means, result.metrics.mean_return[:, iteration])
+
+
+def test_a_failing_run_raises_instead_of_hanging():
+    config = TrainConfig(iterations=3, episodes=2, max_steps=10)
+    program = reinforce.compiled_program(config)
+
+    def failing(train_state, hyperparams):
+        raise RuntimeError("device lost")
+
+    hyperparams = jax.tree.map(lambda v: np.full(300, v, np.float32), config.hyperparams)
+    with pytest.raises(RuntimeError, match="device lost"):
+        reinforce.run(program._replace(iterate=failing), config.iterations,
+                      [(reinforce.run_keys(np.arange(300)), hyperparams)], lambda *_: None)
