@@ -2,13 +2,12 @@
 
 One iteration plays `episodes` episodes of at most `max_steps` steps with the current policy,
 discounts and normalises the rewards, and takes one optimizer step on the REINFORCE loss. An
-iteration of every run together (`vmap` over runs) is one compiled program, so that many seeds and
-hyperparameter settings train at once.
+iteration of many runs together (each run on the last axis of every array) is one compiled
+program, so that many seeds and hyperparameter settings train at once.
 
-The host calls that program once per iteration, one iteration ahead of what it has shown:
-XLA never waits for Python, progress needs no callback from inside the program, and a program
-without callbacks can be kept in JAX's persistent compilation cache, so a second process does not
-compile again.
+The host calls that program once per iteration and shows progress as iterations complete: the
+program needs no callback into Python, and a program without callbacks can be kept in JAX's
+persistent compilation cache, so a second process does not compile again.
 """
 
 import concurrent.futures
@@ -157,9 +156,16 @@ def reinforce_loss(policy_params, network, transitions, advantages):
     Its gradient is the book's: the gradient of the binary cross-entropy between P(left) and the
     action taken, weighted by the normalised return and averaged over every step of every episode.
     """
+    return -sums.invariant_mean(
+        _weighted_log_probs(policy_params, network, transitions, advantages), (0, 1),
+        transitions.alive,
+    )
+
+
+def _weighted_log_probs(policy_params, network, transitions, advantages):
+    """advantage * log pi(a|s) at every step `[T, E, ...]`."""
     logits = policies.forward(policy_params, transitions.obs, network.activation)
-    log_probs = policies.log_prob(logits, transitions.action)
-    return -sums.invariant_mean(advantages * log_probs, (0, 1), transitions.alive)
+    return advantages * policies.log_prob(logits, transitions.action)
 
 
 def loss_and_grad(policy_params, network, transitions, advantages):
@@ -181,8 +187,7 @@ def loss_and_grad(policy_params, network, transitions, advantages):
         return jnp.pad(leaf, pad).reshape(num_chunks, chunk, *leaf.shape[1:])
 
     def chunk_loss(policy_params, transitions, advantages):
-        logits = policies.forward(policy_params, transitions.obs, network.activation)
-        terms = advantages * policies.log_prob(logits, transitions.action)
+        terms = _weighted_log_probs(policy_params, network, transitions, advantages)
         losses = -sums.invariant_sum(jnp.where(transitions.alive, terms, 0.0), (0, 1))
         return losses.sum(), losses  # runs are independent: each run's gradient is its own
 
