@@ -169,47 +169,54 @@ def _weighted_log_probs(policy_params, network, transitions, advantages):
 
 
 def loss_and_grad(policy_params, network, transitions, advantages):
-    """`reinforce_loss` and its gradient, taken over time in chunks of `rollout.CHUNK` steps.
+    """`reinforce_loss` and its gradient, accumulated step by step in a scan over time.
 
-    A chunk's arrays stay in cache however many runs train at once, and the chunks after every
-    episode ended are skipped, as the rollout skips them. The sums add chunk after chunk, each
-    chunk in a fixed order, so they are still the same for a run alone as in a sweep.
+    Every episode's steps get their own copy of the parameters, so the gradient of a step's
+    log-probability is elementwise work, summed over time into `[..., E, R]` accumulators and over
+    the E episodes at the end in a fixed order: a run rounds the same alone as in a sweep. Steps
+    run in chunks of `rollout.CHUNK`, and the chunks after every episode ended are skipped, as the
+    rollout skips them.
 
     Returns:
       (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
     """
-    num_steps = advantages.shape[0]
+    num_steps, num_episodes = advantages.shape[:2]
+    runs = advantages.ndim - 2
     chunk = min(rollout.CHUNK, num_steps)
     num_chunks = -(-num_steps // chunk)
+
+    def per_episode(leaf):  # [..., *runs] -> [..., E, *runs]
+        at = leaf.ndim - runs
+        return jnp.broadcast_to(jnp.expand_dims(leaf, at), leaf.shape[:at] + advantages.shape[1:])
+
+    def over_episodes(total):  # -[..., E, *runs] summed over E, per alive step
+        return -sums.invariant_sum(total, total.ndim - runs - 1) / count
 
     def in_chunks(leaf):
         pad = [(0, num_chunks * chunk - num_steps)] + [(0, 0)] * (leaf.ndim - 1)
         return jnp.pad(leaf, pad).reshape(num_chunks, chunk, *leaf.shape[1:])
 
-    def chunk_loss(policy_params, transitions, advantages):
-        terms = _weighted_log_probs(policy_params, network, transitions, advantages)
-        losses = -sums.invariant_sum(jnp.where(transitions.alive, terms, 0.0), (0, 1))
-        return losses.sum(), losses  # runs are independent: each run's gradient is its own
+    def one_step(totals, step):
+        obs, action, weight = step
 
-    def play(policy_params, transitions, advantages):
-        (_, losses), grads = jax.value_and_grad(chunk_loss, has_aux=True)(
-            policy_params, transitions, advantages
-        )
-        return losses, grads
+        def log_prob(params):
+            return policies.log_prob(policies.forward(params, obs, network.activation), action)
 
-    def skip(policy_params, transitions, advantages):
-        return jax.tree.map(jnp.zeros_like, jax.eval_shape(play, policy_params, transitions,
-                                                           advantages))
+        log_probs, vjp = jax.vjp(log_prob, params)
+        return jax.tree.map(jnp.add, totals, (weight * log_probs, *vjp(weight))), None
 
-    def one_chunk(totals, xs):
-        part = jax.lax.cond(jnp.any(xs[0].alive), play, skip, policy_params, *xs)
-        return jax.tree.map(jnp.add, totals, part), None
+    def one_chunk(totals, steps):
+        play = lambda totals, steps: jax.lax.scan(one_step, totals, steps)[0]  # noqa: E731
+        return jax.lax.cond(jnp.any(steps[2] != 0), play, lambda totals, _: totals, totals,
+                            steps), None
 
-    zeros = skip(policy_params, *jax.tree.map(lambda leaf: leaf[:chunk], (transitions, advantages)))
-    chunks = jax.tree.map(in_chunks, (transitions, advantages))
-    (loss, grads), _ = jax.lax.scan(one_chunk, zeros, chunks)
-    count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(loss.dtype), (0, 1)), 1)
-    return loss / count, jax.tree.map(lambda grad: grad / count, grads)
+    weights = jnp.where(transitions.alive, advantages, 0.0)
+    count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
+    params = jax.tree.map(per_episode, policy_params)
+    zeros = jax.tree.map(jnp.zeros_like, (weights[0], params))
+    steps = jax.tree.map(in_chunks, (transitions.obs, transitions.action, weights))
+    totals, _ = jax.lax.scan(one_chunk, zeros, steps)
+    return jax.tree.map(over_episodes, totals)
 
 
 def global_norm(tree):
