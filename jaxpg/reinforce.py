@@ -303,7 +303,9 @@ class Program(NamedTuple):
     """The compiled training of R runs at once, for one `TrainConfig`."""
 
     init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
-    iterate: Callable  # (TrainState [R], Hyperparams [R]) -> (TrainState [R], Metrics [R])
+    # (TrainState [R], Hyperparams [R]) -> (TrainState [R], Metrics' fields stacked [6, R]): one
+    # array per iteration to fetch rather than six.
+    iterate: Callable
 
 
 def compiled_program(config):
@@ -317,9 +319,16 @@ def compiled_program(config):
 @functools.lru_cache(maxsize=32)
 def _program(config):
     return Program(
-        jax.jit(functools.partial(init_runs, config)),
-        jax.jit(functools.partial(iterate, config), donate_argnums=0),
+        # Initialising runs once, it is compiled for speed of compilation, not of running.
+        jax.jit(functools.partial(init_runs, config),
+                compiler_options={"xla_backend_optimization_level": 0}),
+        jax.jit(functools.partial(_iterate_stacked, config), donate_argnums=0),
     )
+
+
+def _iterate_stacked(config, train_state, hyperparams):
+    train_state, metrics = iterate(config, train_state, hyperparams)
+    return train_state, jnp.stack(metrics)
 
 
 CPU_BLOCK = 128  # runs a CPU trains together: their [T, E, R] arrays stay in its caches
@@ -379,7 +388,7 @@ def run(program, iterations, parts, on_iteration=None):
                 progress_made.wait_for(lambda: finished[iteration] == num_workers or failed)
             if finished[iteration] < num_workers:
                 break  # a worker failed; its error is raised below
-            shown = [np.asarray(m.mean_return) for m in history[iteration]]
+            shown = [Metrics(*np.asarray(m)).mean_return for m in history[iteration]]
             on_iteration(iteration, np.concatenate(shown))
         for worker in workers:
             worker.result()
@@ -388,8 +397,7 @@ def run(program, iterations, parts, on_iteration=None):
     for index in range(len(parts)):
         mine = [i for i, owner in enumerate(owners) if owner == index]
         metrics = jax.device_get([[history[t][i] for i in mine] for t in range(iterations)])
-        metrics = [jax.tree.map(lambda *leaves: np.concatenate(leaves), *m) for m in metrics]
-        stacked = jax.tree.map(lambda *leaves: np.stack(leaves, axis=-1), *metrics)
+        stacked = Metrics(*np.stack([np.concatenate(m, axis=-1) for m in metrics], axis=-1))
         params = jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=-1),
                               *[finals[i].policy_params for i in mine])
         results.append(TrainResult(jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), params),
