@@ -5,6 +5,10 @@ For N environments stepped together, with auto-reset:
 - jaxpg: `rollout.stream` with `rollout.random_policy`, jitted; one program per (N, T) whose scan
   length T is chosen so that a run takes about `--seconds`; compile time is reported apart. The
   random actions are drawn inside the program and so are counted.
+- jaxpg-sharded: the same program with its N environments split over every device. On a CPU the
+  script asks JAX for one device per core (`--xla_force_host_platform_device_count`, unless
+  XLA_FLAGS already sets it), so that both halves run at once; every other program here still
+  runs on one device. N must divide evenly; other sizes are skipped.
 - gymnax (when importable): `CartPole-v1` with `vmap` over environments and `lax.scan` over time,
   as gymnax's documentation does; the auto-reset is gymnax's own `step`. Actions are drawn in bulk
   inside the program, as for jaxpg, and counted.
@@ -18,19 +22,25 @@ For N environments stepped together, with auto-reset:
 """
 
 import argparse
+import os
 import statistics
 import time
 
-import common
-import gymnasium as gym
-import jax
-import jax.numpy as jnp
-import numpy as np
-from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
+if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+    # Before JAX starts: one CPU device per core, for jaxpg-sharded. GPUs are unaffected.
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_"
+                               f"device_count={os.cpu_count() or 1}").strip()
 
-from jaxpg import cartpole, rollout
+import common  # noqa: E402
+import gymnasium as gym  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv  # noqa: E402
 
-IMPLS = ("jaxpg", "gymnax", "gymnasium-vector", "gymnasium")
+from jaxpg import cartpole, rollout  # noqa: E402
+
+IMPLS = ("jaxpg", "jaxpg-sharded", "gymnax", "gymnasium-vector", "gymnasium")
 MAX_SCAN_STEPS = 2**22  # bounds the [T, 2] array of step keys
 GYMNAX_HINT = (
     "gymnax 1.0.1 pins gymnasium<1.4 (and imports six without declaring it); see "
@@ -41,14 +51,25 @@ GYMNAX_HINT = (
 # ---------------------------------------------------------------- programs that step N envs T times
 
 
-def jaxpg_program(num_envs, num_steps):
-    """`key -> (StreamState, StreamStats)`: N auto-resetting jaxpg envs, T random steps."""
+def jaxpg_program(num_envs, num_steps, sharded=False):
+    """`key -> (StreamState, StreamStats)`: N auto-resetting jaxpg envs, T random steps.
+
+    `sharded` splits the environments over every device: XLA partitions the program, and each
+    device steps its share (the statistics are summed over devices).
+    """
     env_params = cartpole.V1
 
     def program(key):
         return rollout.stream(key, rollout.random_policy, env_params, num_envs, num_steps)
 
-    return jax.jit(program)
+    if not sharded:
+        return jax.jit(program)
+    mesh = jax.sharding.Mesh(np.array(jax.devices()), ("env",))
+    split, whole = (jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(*axes))
+                    for axes in (("env",), ()))
+    state, stats = jax.eval_shape(program, jax.random.PRNGKey(0))
+    return jax.jit(program, out_shardings=(jax.tree.map(lambda _: split, state),
+                                           jax.tree.map(lambda _: whole, stats)))
 
 
 def gymnax_program(gymnax, num_envs, num_steps):
@@ -81,7 +102,7 @@ def gymnax_program(gymnax, num_envs, num_steps):
 # ---------------------------------------------------------------- measuring
 
 
-def measure_jax(make_program, num_envs, args):
+def measure_jax(make_program, num_envs, args, **extra):
     """Compiles, picks T for about `args.seconds` per run, and times `args.repeats` runs."""
     key = jax.random.PRNGKey(0)
     num_steps = args.steps or max(8, min(1024, 2**16 // num_envs))
@@ -95,7 +116,7 @@ def measure_jax(make_program, num_envs, args):
     compiled, compile_times = common.compile_jitted(make_program(num_envs, num_steps), key)
     jax.block_until_ready(compiled(jax.random.PRNGKey(1)))  # warm-up
     timing, _ = common.time_calls(compiled, key, repeats=args.repeats)
-    return _row(num_envs, num_steps, timing, **compile_times)
+    return _row(num_envs, num_steps, timing, **compile_times, **extra)
 
 
 def measure_loop(step_block, block, num_envs, args):
@@ -168,6 +189,9 @@ def single_env_block(block=1000):
 def measure(impl, num_envs, args, gymnax):
     if impl == "jaxpg":
         return measure_jax(jaxpg_program, num_envs, args)
+    if impl == "jaxpg-sharded":
+        return measure_jax(lambda n, t: jaxpg_program(n, t, sharded=True), num_envs, args,
+                           devices=jax.device_count())
     if impl == "gymnax":
         return measure_jax(lambda n, t: gymnax_program(gymnax, n, t), num_envs, args)
     if impl == "gymnasium-vector":
@@ -253,6 +277,8 @@ def main():
         for num_envs in args.sizes:
             if impl == "gymnasium" and num_envs != 1:
                 continue
+            if impl == "jaxpg-sharded" and num_envs % jax.device_count():
+                continue
             row = {"impl": impl, **measure(impl, num_envs, args, gymnax)}
             rows.append(row)
             print(f"{impl:>16}  N={num_envs:<6}  {row['steps_per_s']:>14,.0f} steps/s", flush=True)
@@ -261,8 +287,8 @@ def main():
                "compile_s"]
     common.print_table(rows, columns, title="steps/s (median run; compile timed apart)")
     ran = {row["impl"] for row in rows}
-    summaries = [ratios(rows, "jaxpg", peer) for peer in ("gymnasium-vector", "gymnax")
-                 if "jaxpg" in ran and peer in ran]
+    summaries = [ratios(rows, ours, peer) for ours in ("jaxpg", "jaxpg-sharded")
+                 for peer in ("gymnasium-vector", "gymnax") if ours in ran and peer in ran]
     print()
     print_best(ratios(rows, "jaxpg", "jaxpg"))
     for summary in summaries:

@@ -16,7 +16,7 @@ Step counts:
 
 Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
 
-    python benchmarks/train_throughput.py                    # seeds 1, 64, 1024; 150 iterations
+    python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
     python benchmarks/train_throughput.py --quick            # a quick check that everything runs
 """
 
@@ -117,7 +117,7 @@ def parse_args():
     parser = argparse.ArgumentParser(description="REINFORCE training throughput, jaxpg vs numpy")
     parser.add_argument("--quick", action="store_true",
                         help="seeds 1,8, 10 iterations, 5 numpy iterations: checks that all runs")
-    parser.add_argument("--seeds", default="1,64,1024",
+    parser.add_argument("--seeds", default="1,8,64,256,1024",
                         help="comma-separated numbers of seeds R trained at once")
     parser.add_argument("--iterations", type=int, default=None,
                         help="training iterations (default: TrainConfig's, the book's 150)")

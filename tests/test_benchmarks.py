@@ -3,7 +3,9 @@
 No timing here: benchmarks are scripts, run by hand.
 """
 
+import os
 import pathlib
+import subprocess
 import sys
 
 import jax
@@ -119,3 +121,30 @@ def test_runs_on_another_env_id():
 def test_runs_on_jaxpgs_registered_env():
     pytest.importorskip("jaxpg.gym")
     assert len(book_numpy.train(seed=0, iterations=1, env_id="jaxpg/CartPole-v1")) == 1
+
+
+SHARDED_STREAM = """
+import sys
+import jax
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import env_throughput
+
+assert jax.device_count() == 2, jax.devices()
+key = jax.random.PRNGKey(7)
+one = env_throughput.jaxpg_program(64, 300)(key)
+two = env_throughput.jaxpg_program(64, 300, sharded=True)(key)
+assert len(two[0].prev_done.sharding.device_set) == 2
+for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(two)):
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+print(int(one[1].episodes))
+"""
+
+
+def test_the_sharded_stream_steps_as_one_device():
+    benchmarks = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    result = subprocess.run([sys.executable, "-c", SHARDED_STREAM, str(benchmarks)], env=env,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert int(result.stdout) > 64  # every environment ended an episode, many several
