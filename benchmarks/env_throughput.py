@@ -6,9 +6,10 @@ For N environments stepped together, with auto-reset:
   length T is chosen so that a run takes about `--seconds`; compile time is reported apart. The
   random actions are drawn inside the program and so are counted.
 - jaxpg-sharded: the same program with its N environments split over every device. On a CPU the
-  script asks JAX for one device per core (`--xla_force_host_platform_device_count`, unless
-  XLA_FLAGS already sets it), so that both halves run at once; every other program here still
-  runs on one device. N must divide evenly; other sizes are skipped.
+  script asks JAX for one device per usable core (`--xla_force_host_platform_device_count`,
+  unless XLA_FLAGS already sets it), so that the parts run at once; every other program here
+  still runs on one device, with the others idle beside it. N must divide evenly; other sizes are
+  skipped, with a line that says so.
 - gymnax (when importable): `CartPole-v1` with `vmap` over environments and `lax.scan` over time,
   as gymnax's documentation does; the auto-reset is gymnax's own `step`. Actions are drawn in bulk
   inside the program, as for jaxpg, and counted.
@@ -29,7 +30,7 @@ import time
 if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
     # Before JAX starts: one CPU device per core, for jaxpg-sharded. GPUs are unaffected.
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_"
-                               f"device_count={os.cpu_count() or 1}").strip()
+                               f"device_count={len(os.sched_getaffinity(0))}").strip()
 
 import common  # noqa: E402
 import gymnasium as gym  # noqa: E402
@@ -278,6 +279,8 @@ def main():
             if impl == "gymnasium" and num_envs != 1:
                 continue
             if impl == "jaxpg-sharded" and num_envs % jax.device_count():
+                print(f"{impl:>16}  N={num_envs:<6}  skipped: N does not split evenly over "
+                      f"{jax.device_count()} devices")
                 continue
             row = {"impl": impl, **measure(impl, num_envs, args, gymnax)}
             rows.append(row)

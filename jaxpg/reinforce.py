@@ -156,16 +156,9 @@ def reinforce_loss(policy_params, network, transitions, advantages):
     Its gradient is the book's: the gradient of the binary cross-entropy between P(left) and the
     action taken, weighted by the normalised return and averaged over every step of every episode.
     """
-    return -sums.invariant_mean(
-        _weighted_log_probs(policy_params, network, transitions, advantages), (0, 1),
-        transitions.alive,
-    )
-
-
-def _weighted_log_probs(policy_params, network, transitions, advantages):
-    """advantage * log pi(a|s) at every step `[T, E, ...]`."""
     logits = policies.forward(policy_params, transitions.obs, network.activation)
-    return advantages * policies.log_prob(logits, transitions.action)
+    terms = advantages * policies.log_prob(logits, transitions.action)
+    return -sums.invariant_mean(terms, (0, 1), transitions.alive)
 
 
 def loss_and_grad(policy_params, network, transitions, advantages):
@@ -174,13 +167,13 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     Every episode's steps get their own copy of the parameters, so the gradient of a step's
     log-probability is elementwise work, summed over time into `[..., E, R]` accumulators and over
     the E episodes at the end in a fixed order: a run rounds the same alone as in a sweep. Steps
-    run in chunks of `rollout.CHUNK`, and the chunks after every episode ended are skipped, as the
-    rollout skips them.
+    run in chunks of `rollout.CHUNK`, and chunks that weigh nothing are skipped: those after every
+    episode ended, which the rollout skipped too.
 
     Returns:
       (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
     """
-    num_steps, num_episodes = advantages.shape[:2]
+    num_steps = advantages.shape[0]
     runs = advantages.ndim - 2
     chunk = min(rollout.CHUNK, num_steps)
     num_chunks = -(-num_steps // chunk)
@@ -205,10 +198,14 @@ def loss_and_grad(policy_params, network, transitions, advantages):
         log_probs, vjp = jax.vjp(log_prob, params)
         return jax.tree.map(jnp.add, totals, (weight * log_probs, *vjp(weight))), None
 
+    def play(totals, steps):
+        return jax.lax.scan(one_step, totals, steps)[0]
+
+    def skip(totals, steps):
+        return totals
+
     def one_chunk(totals, steps):
-        play = lambda totals, steps: jax.lax.scan(one_step, totals, steps)[0]  # noqa: E731
-        return jax.lax.cond(jnp.any(steps[2] != 0), play, lambda totals, _: totals, totals,
-                            steps), None
+        return jax.lax.cond(jnp.any(steps[2] != 0), play, skip, totals, steps), None
 
     weights = jnp.where(transitions.alive, advantages, 0.0)
     count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
@@ -303,8 +300,8 @@ class Program(NamedTuple):
     """The compiled training of R runs at once, for one `TrainConfig`."""
 
     init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
-    # (TrainState [R], Hyperparams [R]) -> (TrainState [R], Metrics' fields stacked [6, R]): one
-    # array per iteration to fetch rather than six.
+    # (TrainState [R], Hyperparams [R]) -> (TrainState [R], Metrics' fields stacked
+    # [len(Metrics._fields), R]): one array per iteration to fetch rather than one per field.
     iterate: Callable
 
 

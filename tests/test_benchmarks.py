@@ -145,6 +145,6 @@ def test_the_sharded_stream_steps_as_one_device():
     benchmarks = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     result = subprocess.run([sys.executable, "-c", SHARDED_STREAM, str(benchmarks)], env=env,
-                            capture_output=True, text=True)
+                            capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     assert int(result.stdout) > 64  # every environment ended an episode, many several

@@ -1,6 +1,7 @@
 """REINFORCE: the book's gradient computed literally, training quality, and bad settings."""
 
 import dataclasses
+import functools
 
 import chex
 import jax
@@ -47,11 +48,44 @@ def test_gradient_equals_the_books_algorithm():
     book = _book_gradient(network, policy_params, transitions)
     ours = jax.grad(reinforce.reinforce_loss)(policy_params, network, transitions, advantages)
     chex.assert_trees_all_close(ours, book, rtol=2e-4, atol=1e-6)
-    # The chunked loss and gradient that training uses are the same.
-    loss, chunked = reinforce.loss_and_grad(policy_params, network, transitions, advantages)
-    chex.assert_trees_all_close(chunked, book, rtol=2e-4, atol=1e-6)
+    # The loss and gradient that training accumulates step by step are the same.
+    loss, accumulated = reinforce.loss_and_grad(policy_params, network, transitions, advantages)
+    chex.assert_trees_all_close(accumulated, book, rtol=2e-4, atol=1e-6)
     np.testing.assert_allclose(
         loss, reinforce.reinforce_loss(policy_params, network, transitions, advantages), rtol=1e-5)
+
+
+def test_accumulated_gradient_of_runs_side_by_side():
+    """Three runs on the trailing axis, 25 steps (a padded last chunk): each run's loss and gradient
+    are those of `reinforce_loss`, and bit for bit those it gets alone."""
+    config = TrainConfig(episodes=3, max_steps=25)
+    network, num_runs = config.network, 3
+    keys = jax.random.split(jax.random.PRNGKey(5), num_runs)
+    policy_params = jax.vmap(lambda k: policies.init_network(k, network), out_axes=-1)(keys)
+    episodes = rollout.rollout(keys, policies.network_policy(network, policy_params),
+                               config.env_params, config.episodes, config.max_steps)
+    transitions = episodes.transitions
+    lengths = np.asarray(episodes.lengths)
+    assert lengths.min() < 25 and lengths.max() > 5  # some episodes end, some last
+    advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
+    loss, grads = reinforce.loss_and_grad(policy_params, network, transitions, advantages)
+
+    def run(r, keep_axis):
+        """Run r's parameters, transitions and advantages (observations keep their last axis)."""
+        index = slice(r, r + 1) if keep_axis else r
+        pick = functools.partial(jax.tree.map, lambda leaf: leaf[..., index])
+        mine = pick(transitions._replace(obs=None))._replace(obs=transitions.obs[..., index, :])
+        return pick(policy_params), mine, pick(advantages)
+
+    for r in range(num_runs):
+        params, mine, weights = run(r, keep_axis=True)
+        alone = reinforce.loss_and_grad(params, network, mine, weights)
+        chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., r : r + 1],
+                                                        (loss, grads)))
+        params, mine, weights = run(r, keep_axis=False)
+        expected = jax.value_and_grad(reinforce.reinforce_loss)(params, network, mine, weights)
+        chex.assert_trees_all_close(jax.tree.map(lambda leaf: leaf[..., 0], alone), expected,
+                                    rtol=1e-5, atol=1e-7)
 
 
 @pytest.fixture(scope="module")
