@@ -27,12 +27,13 @@ import os
 import statistics
 import time
 
+import common
+
 if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
     # Before JAX starts: one CPU device per core, for jaxpg-sharded. GPUs are unaffected.
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_"
-                               f"device_count={len(os.sched_getaffinity(0))}").strip()
+                               f"device_count={common.usable_cores()}").strip()
 
-import common  # noqa: E402
 import gymnasium as gym  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

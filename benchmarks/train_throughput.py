@@ -25,18 +25,10 @@ import dataclasses
 
 import book_numpy
 import common
-import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import reinforce, rollout
-
-
-def hyperparams_for(config, num_runs):
-    """The config's learning rate and discount as `[R]` arrays, as a sweep passes them."""
-    return reinforce.Hyperparams(
-        jnp.full((num_runs,), config.learning_rate, jnp.float32),
-        jnp.full((num_runs,), config.discount, jnp.float32),
-    )
+from jaxpg.sweep import check_seeds, expand_grid, run_inputs
 
 
 def step_counts(config, num_runs, mean_lengths):
@@ -60,8 +52,8 @@ def skipped_fraction(config, max_lengths):
 
 def measure_jaxpg(config, num_runs, repeats):
     """Compiles the training of `num_runs` seeds, runs it once, then times `repeats` runs."""
-    keys = reinforce.run_keys(np.arange(num_runs))
-    hyperparams = hyperparams_for(config, num_runs)
+    # Seeds 0..R-1 under the config's own settings, passed as a sweep passes them.
+    keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
     program = reinforce.compiled_program(config)
     _, init_times = common.compile_jitted(program.init, keys, hyperparams)
     _, compile_times = common.compile_jitted(

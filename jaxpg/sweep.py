@@ -1,7 +1,8 @@
 """Many training runs at once: seeds times a grid of learning rates and discounts.
 
-Every run of a sweep is the same compiled program as `train` runs alone, vmapped; seed i of a
-sweep therefore trains exactly as `train(config, seed=i)`. The runs are spread over every device
+Every run of a sweep trains in the same compiled program as `train` runs alone, beside the other
+runs on the last axis of every array; seed i of a sweep therefore trains exactly as
+`train(config, seed=i)`. The runs are spread over every device
 of every process, and trained in chunks when a memory budget asks for it.
 """
 
