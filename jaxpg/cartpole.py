@@ -75,9 +75,9 @@ class CartPoleState:
         time = jnp.broadcast_to(jnp.asarray(time, jnp.int32), values.shape[:-1])
         return cls(values[..., 0], values[..., 1], values[..., 2], values[..., 3], time)
 
-    def to_array(self):
-        """The physical values as `[..., 4]`."""
-        return jnp.stack([self.x, self.x_dot, self.theta, self.theta_dot], axis=-1)
+    def to_array(self, axis=-1):
+        """The physical values as `[..., 4]`, or with the four values on another `axis`."""
+        return jnp.stack([self.x, self.x_dot, self.theta, self.theta_dot], axis=axis)
 
 
 def make_params(env="CartPole-v1", **overrides):

@@ -193,7 +193,8 @@ def loss_and_grad(policy_params, network, transitions, advantages):
         obs, action, weight = step
 
         def log_prob(params):
-            return policies.log_prob(policies.forward(params, obs, network.activation), action)
+            logits = policies.forward(params, jnp.moveaxis(obs, 0, -1), network.activation)
+            return policies.log_prob(logits, action)
 
         log_probs, vjp = jax.vjp(log_prob, params)
         return jax.tree.map(jnp.add, totals, (weight * log_probs, *vjp(weight))), None
@@ -211,7 +212,8 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
     params = jax.tree.map(per_episode, policy_params)
     zeros = jax.tree.map(jnp.zeros_like, (weights[0], params))
-    steps = jax.tree.map(in_chunks, (transitions.obs, transitions.action, weights))
+    obs = jnp.moveaxis(transitions.obs, -1, 1)  # [T, 4, E, R]: each step's features contiguous
+    steps = jax.tree.map(in_chunks, (obs, transitions.action, weights))
     totals, _ = jax.lax.scan(one_chunk, zeros, steps)
     return jax.tree.map(over_episodes, totals)
 

@@ -81,25 +81,25 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
 
     def one_step(carry, u):
         state, done = carry
-        obs = cartpole.observe(state)
-        action = policy(obs, u)
+        features = state.to_array(axis=0)  # the observation, [4, E]
+        action = policy(jnp.moveaxis(features, 0, -1), u)
         _, next_state, reward, terminated, truncated = cartpole.step(state, action, env_params)
         alive = ~done
         reward = jnp.where(alive, reward, 0.0)
         next_state = _select(done, state, next_state)
         done = done | terminated | truncated
-        return (next_state, done), Transition(obs, action, reward, alive)
+        return (next_state, done), Transition(features, action, reward, alive)
 
     def play_chunk(carry, noise):
         return jax.lax.scan(one_step, carry, noise)
 
     def skip_chunk(carry, noise):
         state, done = carry
-        obs = cartpole.observe(state)
+        features = state.to_array(axis=0)
         frozen = Transition(
-            obs=jnp.broadcast_to(obs, (chunk, *obs.shape)),
+            obs=jnp.broadcast_to(features, (chunk, *features.shape)),
             action=jnp.zeros(noise.shape, jnp.int32),
-            reward=jnp.zeros(noise.shape, obs.dtype),
+            reward=jnp.zeros(noise.shape, features.dtype),
             alive=jnp.zeros(noise.shape, bool),
         )
         return carry, frozen
@@ -112,6 +112,10 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
     transitions = jax.tree.map(
         lambda leaf: leaf.reshape(num_chunks * chunk, *leaf.shape[2:])[:max_steps], transitions
     )
+    # Observations are stored features first, each step's four values contiguous for the policy
+    # and for the gradient that reads them back (`[T, 4, E]`, which XLA keeps as it is when
+    # a consumer moves the features first again).
+    transitions = transitions._replace(obs=jnp.moveaxis(transitions.obs, 1, -1))
     returns = transitions.reward.sum(axis=0)
     lengths = transitions.alive.sum(axis=0)
     return Episodes(transitions, returns, lengths)
