@@ -416,8 +416,12 @@ def _blocks(part):
 
 
 def run_keys(seeds):
-    """One PRNG key per seed: `[R, 2]`."""
-    return jax.vmap(jax.random.PRNGKey)(jnp.asarray(seeds, dtype=jnp.uint32))
+    """One PRNG key per seed, `[R, 2]` uint32: `jax.random.PRNGKey(seed)`, made on the host.
+
+    Threefry's key of a 32-bit seed is its high word (0) and the seed itself.
+    """
+    seeds = np.asarray(seeds, dtype=np.uint32)
+    return np.stack([np.zeros_like(seeds), seeds], axis=-1)
 
 
 def train(config=TrainConfig(), seed=0, show_progress=True):

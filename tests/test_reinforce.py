@@ -162,6 +162,13 @@ def test_any_optax_optimizer_by_name():
     assert np.all(np.isfinite(result.metrics.loss))
 
 
+def test_run_keys_are_jax_prng_keys():
+    seeds = [0, 1, 12345, 2**31, 2**32 - 1]
+    np.testing.assert_array_equal(reinforce.run_keys(seeds),
+                                  np.stack([jax.random.PRNGKey(s) for s in seeds]))
+    assert reinforce.run_keys(seeds).dtype == np.uint32
+
+
 def test_a_run_trains_the_same_beside_a_thousand_others():
     """Sums and layouts are batch-invariant up to large R, not only at the 64 seeds of a sweep."""
     config = TrainConfig(iterations=3, episodes=3, max_steps=30)
