@@ -15,17 +15,11 @@ and `load(DIR)` reads), holding a msgpack map written by `flax.serialization.msg
 
 Any msgpack reader can open the file; flax's `msgpack_restore` turns the arrays back into numpy.
 
-Every file jaxpg writes (checkpoints, animations, plots) goes through `atomic_path`: the content
-is written to a temporary file in the same directory, flushed to disk, then renamed over the
-target, so a crash mid-write leaves the previous file intact (and perhaps a stray
-`.NAME.*.tmp*` file beside it).
+It is written with `results.atomic_write`: a crash mid-write leaves the previous file intact.
 """
 
-import contextlib
 import dataclasses
-import os
 import pathlib
-import uuid
 from typing import NamedTuple
 
 import jax
@@ -33,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from jaxpg import cartpole, reinforce
+from jaxpg import cartpole, reinforce, results
 
 FORMAT = "jaxpg-checkpoint"
 FORMAT_VERSION = 1
@@ -47,60 +41,6 @@ class Checkpoint(NamedTuple):
     config: reinforce.TrainConfig
     version: str  # the jaxpg version that wrote it
     metrics: reinforce.Metrics | None
-
-
-# --- Atomic writes -------------------------------------------------------------------------------
-
-
-@contextlib.contextmanager
-def atomic_path(path):
-    """Yields a temporary path beside `path`; on success, moves the file written there onto `path`.
-
-    The temporary name ends with the same suffix as `path`, so writers that pick a format from
-    the file name (imageio, matplotlib) write the right one. On an exception the temporary file
-    is removed and `path` is left as it was.
-
-    Args:
-      path: the file to (over)write.
-
-    Yields:
-      A `pathlib.Path` that does not yet hold any content; write the whole file there.
-    """
-    path = pathlib.Path(path)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp{path.suffix}")
-    # Created here (honouring the umask, unlike mkstemp's 0600) so the name is ours alone.
-    os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
-    try:
-        yield tmp
-        _fsync(tmp, os.O_RDONLY)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    # The rename is durable only once the directory entry is on disk; not possible on Windows.
-    with contextlib.suppress(OSError):
-        _fsync(path.parent, getattr(os, "O_DIRECTORY", os.O_RDONLY))
-
-
-def _fsync(path, flags):
-    fd = os.open(path, flags)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def atomic_write(path, data):
-    """Writes `data` (bytes, or str as UTF-8) to `path` so that readers see the old or the new file.
-
-    Args:
-      path: the file to (over)write.
-      data: the whole content.
-    """
-    if isinstance(data, str):
-        data = data.encode()
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
 
 
 # --- Saving --------------------------------------------------------------------------------------
@@ -136,7 +76,7 @@ def save(path, policy_params, config, metrics=None):
         "metrics": None if metrics is None else jax.tree.map(np.asarray, metrics._asdict()),
     }
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, serialization.msgpack_serialize(payload))
+    results.atomic_write(path, serialization.msgpack_serialize(payload))
     return path
 
 

@@ -71,7 +71,7 @@ def _add_training_args(parser):
     parser.add_argument("--env", default=d.env, help="CartPole-v1 or CartPole-v0 (default %(default)s)")
     parser.add_argument("--solved-return", type=float, default=d.solved_return, help="mean return that counts as solved (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
-    parser.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    parser.add_argument("--no-cache", action="store_true", help="compile afresh; keep no compiled programs")
 
 
 def _config(args, **hyperparams):
@@ -90,13 +90,23 @@ def _config(args, **hyperparams):
     )
 
 
-def _enable_compilation_cache(disabled):
-    """Keeps compiled programs in the user's cache directory, so the next process skips compiling."""
+def _enable_compilation_cache(disabled, whole_programs=False):
+    """Keeps compiled programs in the user's cache directory, so that the next process skips compiling.
+
+    `train` and `sweep` compile nothing but the training programs and keep them whole
+    (`executables`): a later process neither traces nor compiles them. The other commands use JAX's
+    persistent compilation cache. One process never uses both (`executables` says why).
+    """
     if disabled:
+        return
+    cache_home = pathlib.Path(os.environ.get("XDG_CACHE_HOME", pathlib.Path.home() / ".cache"))
+    if whole_programs:
+        from jaxpg import executables
+
+        executables.enable(cache_home / "jaxpg" / "programs")
         return
     import jax
 
-    cache_home = pathlib.Path(os.environ.get("XDG_CACHE_HOME", pathlib.Path.home() / ".cache"))
     jax.config.update("jax_compilation_cache_dir", str(cache_home / "jaxpg" / "xla"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
@@ -125,7 +135,7 @@ def cmd_train(args):
     config = _config(args, learning_rate=args.lr, discount=args.discount)
     out = results.check_out_dir(args.out)
     check_int("seed", args.seed, 0)
-    _enable_compilation_cache(args.no_cache)
+    _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     result = train(config, seed=args.seed, show_progress=not args.quiet)
     seconds = time.perf_counter() - start
@@ -181,7 +191,7 @@ def cmd_sweep(args):
     grid = {"learning_rate": args.lr, "discount": args.discount}
     expand_grid(config, grid)  # validates before compiling
     out = results.check_out_dir(args.out)
-    _enable_compilation_cache(args.no_cache)
+    _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet,
                   memory_budget=args.memory_budget)
@@ -333,7 +343,7 @@ def build_parser():
     p = commands.add_parser("reproduce", help="the book's numbers beside jaxpg's")
     p.add_argument("--seed", type=int, default=42)
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.add_argument("--no-cache", action="store_true", help="do not use the persistent compilation cache")
+    p.add_argument("--no-cache", action="store_true", help="compile afresh; keep no compiled programs")
     p.set_defaults(handler=cmd_reproduce)
     return parser
 

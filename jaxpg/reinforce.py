@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxpg import cartpole, policies, progress, returns, rng, rollout, sums
+from jaxpg import cartpole, executables, policies, progress, returns, rng, rollout, sums
 
 
 @dataclasses.dataclass(frozen=True)
@@ -310,6 +310,8 @@ class Program(NamedTuple):
 def compiled_program(config):
     """The jitted `Program` of `config`; `iterate` consumes (donates) the state it is given.
 
+    Its functions keep their compiled programs on disk while `executables.enable` is in effect.
+
     Configs that differ only in how many iterations run, or in what counts as solved, share one.
     """
     return _program(dataclasses.replace(config, iterations=1, solved_return=0.0))
@@ -319,9 +321,13 @@ def compiled_program(config):
 def _program(config):
     return Program(
         # Initialising runs once, it is compiled for speed of compilation, not of running.
-        jax.jit(functools.partial(init_runs, config),
-                compiler_options={"xla_backend_optimization_level": 0}),
-        jax.jit(functools.partial(_iterate_stacked, config), donate_argnums=0),
+        executables.Stored(
+            jax.jit(functools.partial(init_runs, config),
+                    compiler_options={"xla_backend_optimization_level": 0}),
+            "init", config),
+        executables.Stored(
+            jax.jit(functools.partial(_iterate_stacked, config), donate_argnums=0),
+            "iterate", config),
     )
 
 

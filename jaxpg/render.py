@@ -13,7 +13,7 @@ import pathlib
 import jax
 import numpy as np
 
-from jaxpg import cartpole, checkpoint, rollout
+from jaxpg import cartpole, results, rollout
 
 SCREEN_WIDTH = 600
 SCREEN_HEIGHT = 400
@@ -230,6 +230,6 @@ def save_animation(frames, path, fps=50):
         options = {"plugin": "pillow", "duration": 1000 / fps, "loop": 0}
     else:
         raise ValueError(f"path: must end with .gif or .mp4, got {path.name!r}")
-    with checkpoint.atomic_path(path) as tmp:
+    with results.atomic_path(path) as tmp:
         iio.imwrite(tmp, frames, **options)
     return path

@@ -1,14 +1,20 @@
-"""Writing a run's results to an output directory: all files or none.
+"""Writing files so that a failure never loses or corrupts what was there before.
 
-Files are first written to a staging folder inside the output directory and renamed into place
-only once every one of them is complete, so a run that fails (or is killed) leaves an earlier
-run's results as they were.
+A run's results go to an output directory all or none: they are first written to a staging
+folder inside it and renamed into place only once every one of them is complete, so a run that
+fails (or is killed) leaves an earlier run's results as they were.
+
+Every single file jaxpg writes (checkpoints, animations, plots, kept programs) goes through
+`atomic_path`: the content is written to a temporary file in the same directory, flushed to disk,
+then renamed over the target, so a crash mid-write leaves the previous file intact (and perhaps a
+stray `.NAME.*.tmp*` file beside it).
 """
 
 import contextlib
 import csv
 import io
 import json
+import os
 import pathlib
 import shutil
 import uuid
@@ -66,3 +72,57 @@ def write_csv(path, columns):
     writer.writerow(columns)
     writer.writerows(zip(*(np.asarray(v).tolist() for v in columns.values())))
     pathlib.Path(path).write_text(buffer.getvalue())
+
+
+# --- Atomic writes -------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yields a temporary path beside `path`; on success, moves the file written there onto `path`.
+
+    The temporary name ends with the same suffix as `path`, so writers that pick a format from
+    the file name (imageio, matplotlib) write the right one. On an exception the temporary file
+    is removed and `path` is left as it was.
+
+    Args:
+      path: the file to (over)write.
+
+    Yields:
+      A `pathlib.Path` that does not yet hold any content; write the whole file there.
+    """
+    path = pathlib.Path(path)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp{path.suffix}")
+    # Created here (honouring the umask, unlike mkstemp's 0600) so the name is ours alone.
+    os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+    try:
+        yield tmp
+        _fsync(tmp, os.O_RDONLY)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    # The rename is durable only once the directory entry is on disk; not possible on Windows.
+    with contextlib.suppress(OSError):
+        _fsync(path.parent, getattr(os, "O_DIRECTORY", os.O_RDONLY))
+
+
+def _fsync(path, flags):
+    fd = os.open(path, flags)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def atomic_write(path, data):
+    """Writes `data` (bytes, or str as UTF-8) to `path` so that readers see the old or the new file.
+
+    Args:
+      path: the file to (over)write.
+      data: the whole content.
+    """
+    if isinstance(data, str):
+        data = data.encode()
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)

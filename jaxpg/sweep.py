@@ -194,9 +194,9 @@ def device_bytes(program, iterations, num_runs):
     )
     state = jax.tree.map(
         lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=device),
-        jax.eval_shape(program.init, keys, hyperparams),
+        program.init.eval_shape(keys, hyperparams),
     )
-    _, metrics = jax.eval_shape(program.iterate, state, hyperparams)
+    _, metrics = program.iterate.eval_shape(state, hyperparams)
     stats = program.iterate.lower(state, hyperparams).compile().memory_analysis()
     iteration = (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
                  + stats.generated_code_size_in_bytes - stats.alias_size_in_bytes)

@@ -15,7 +15,7 @@ import pytest
 from flax import serialization
 
 import jaxpg
-from jaxpg import cartpole, checkpoint, policies
+from jaxpg import cartpole, checkpoint, policies, results
 from jaxpg.reinforce import Metrics, TrainConfig
 
 CONFIG = TrainConfig(
@@ -183,8 +183,8 @@ def test_killed_save_leaves_the_previous_checkpoint(tmp_path):
 
 def test_atomic_write_replaces_content_with_ordinary_permissions(tmp_path):
     path = tmp_path / "notes.txt"
-    checkpoint.atomic_write(path, "first")
-    checkpoint.atomic_write(path, b"second")
+    results.atomic_write(path, "first")
+    results.atomic_write(path, b"second")
     assert path.read_text() == "second"
     ordinary = tmp_path / "ordinary.txt"
     ordinary.write_text("x")

@@ -1,6 +1,7 @@
 """The `jaxpg` command end to end: outputs, exit statuses, one-line errors, no lost results."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -28,6 +29,20 @@ def test_train_writes_results_that_evaluate_loads(tmp_path, capsys):
     capsys.readouterr()
     assert cli.main(["evaluate", "--policy", str(out), "--episodes", "5", "--backend", "gymnasium"]) == 0
     assert "mean" in capsys.readouterr().out
+
+
+def test_a_second_train_loads_the_programs_the_first_kept(tmp_path):
+    """With the cache on (the default), the programs are kept whole and a second process reuses them."""
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    args = [a for a in SMALL if a != "--no-cache"]
+    for name in ("first", "second"):
+        subprocess.run([sys.executable, "-m", "jaxpg.cli", "train", *args, "--out",
+                        str(tmp_path / name)], env=env, check=True, capture_output=True)
+    kept = sorted(p.name.split("-")[0] for p in (tmp_path / "cache/jaxpg/programs").iterdir())
+    assert kept == ["init", "iterate"]
+    first, second = (json.loads((tmp_path / n / "metrics.json").read_text())["metrics"]
+                     for n in ("first", "second"))
+    assert first == second
 
 
 def test_sweep_writes_summary_and_picture(tmp_path):

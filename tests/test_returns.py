@@ -2,7 +2,6 @@
 
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 from jaxpg import discount_and_normalize_rewards, discount_rewards, returns
 

@@ -1,0 +1,88 @@
+"""Training programs kept on disk whole: reused by a later process without tracing or compiling."""
+
+import chex
+import jax
+import numpy as np
+import pytest
+from jax.experimental.compilation_cache import compilation_cache
+
+from jaxpg import executables, reinforce
+from jaxpg.reinforce import TrainConfig
+
+CONFIG = TrainConfig(iterations=3, episodes=3, max_steps=20)
+
+
+def _train(seeds):
+    hyperparams = jax.tree.map(lambda v: np.full(len(seeds), v, np.float32), CONFIG.hyperparams)
+    (result,) = reinforce.run(reinforce.compiled_program(CONFIG), CONFIG.iterations,
+                              [(reinforce.run_keys(seeds), hyperparams)])
+    return result
+
+
+def _new_process():
+    """Forgets every program this process holds, as a new process would start."""
+    reinforce._program.cache_clear()
+
+
+@pytest.fixture
+def store(tmp_path):
+    executables.enable(tmp_path)
+    _new_process()
+    yield tmp_path
+    executables.disable()
+    _new_process()
+
+
+def _no_compiling(*args, **kwargs):
+    raise AssertionError("compiled, though the program was kept")
+
+
+def test_a_kept_program_is_loaded_and_trains_exactly_the_same(store, monkeypatch):
+    expected = _train([0, 1])  # store is on: compiled and written
+    assert sorted(p.name.split("-")[0] for p in store.iterdir()) == ["init", "iterate"]
+    _new_process()
+    monkeypatch.setattr(jax.stages.Lowered, "compile", _no_compiling)
+    chex.assert_trees_all_equal(_train([0, 1]), expected)
+    executables.disable()
+    _new_process()
+    monkeypatch.undo()
+    chex.assert_trees_all_equal(_train([0, 1]), expected)  # the plain jitted program
+
+
+def test_other_shapes_and_settings_get_programs_of_their_own(store):
+    _train([0])
+    _train([0, 1, 2])
+    assert len(list(store.iterdir())) == 4  # init and iterate, for 1 run and for 3
+
+
+def test_a_damaged_file_is_compiled_again_and_replaced(store):
+    expected = _train([3])
+    for path in store.iterdir():
+        path.write_bytes(b"not a program")
+    _new_process()
+    chex.assert_trees_all_equal(_train([3]), expected)
+    assert all(path.stat().st_size > 1000 for path in store.iterdir())
+
+
+def test_nothing_is_kept_beside_jaxs_persistent_cache(store, tmp_path_factory):
+    previous = jax.config.jax_compilation_cache_dir
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path_factory.mktemp("xla")))
+    try:
+        _train([4])
+    finally:
+        jax.config.update("jax_compilation_cache_dir", previous)
+        compilation_cache.reset_cache()
+    assert list(store.iterdir()) == []
+
+
+def test_a_program_from_jaxs_cache_is_not_kept(store, monkeypatch):
+    """Whatever JAX's cache supplies (here: a compile that reports a hit) is used, never written."""
+    compile_now = jax.stages.Lowered.compile
+
+    def from_jaxs_cache(lowered, *args, **kwargs):
+        jax.monitoring.record_event("/jax/compilation_cache/cache_hits")
+        return compile_now(lowered, *args, **kwargs)
+
+    monkeypatch.setattr(jax.stages.Lowered, "compile", from_jaxs_cache)
+    _train([5])
+    assert list(store.iterdir()) == []
