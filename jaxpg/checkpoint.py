@@ -130,9 +130,9 @@ def config_from_dict(fields):
 
 def _check_params_match(policy_params, config, where):
     """Raises a ValueError unless `policy_params` has the shapes of `config`'s network."""
-    expected = jax.eval_shape(
-        config.network.init, jax.random.PRNGKey(0), jax.ShapeDtypeStruct((4,), jnp.float32)
-    )
+    # Abstract arguments only: a concrete key would cost a compiled program.
+    expected = jax.eval_shape(config.network.init, jax.ShapeDtypeStruct((2,), jnp.uint32),
+                              jax.ShapeDtypeStruct((4,), jnp.float32))
     shapes = jax.tree.map(np.shape, serialization.to_state_dict(policy_params))
     want = jax.tree.map(lambda leaf: leaf.shape, expected)
     if shapes != want:
