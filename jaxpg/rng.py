@@ -82,4 +82,5 @@ def split(key, num=2):
     """`num` new keys `[num, 2]`, equal to `jax.random.split(key, num)`; `[num, R, 2]` for R keys."""
     words = _key_words(key)
     x0, x1 = _threefry2x32(words, *_counters((num,), words.shape[1:]))
-    return jnp.stack([x0, x1], axis=-1)
+    # Kept whole: otherwise XLA recomputes the hash inside every draw that uses one of the keys.
+    return jax.lax.optimization_barrier(jnp.stack([x0, x1], axis=-1))
