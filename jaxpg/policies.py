@@ -66,14 +66,27 @@ def forward(policy_params, obs, activation):
     against observations `[..., R, 4]`: every run's weights then meet its own observations, on the
     fastest-varying axis.
     """
+    return forward_layers(policy_params, obs, activation)[0]
+
+
+def forward_layers(policy_params, obs, activation, offsets=None):
+    """`forward`'s logits and the input features `[K, ...]` of each dense layer.
+
+    `offsets`, one per layer shaped like its output features `[N, ...]`, are added to the layers'
+    outputs when given: the gradient with respect to them is the cotangent of each layer's output.
+    """
     layers = policy_params["params"]
     features = jnp.moveaxis(obs, -1, 0)
+    inputs = []
     for i in range(len(layers)):
         if i:
             features = ACTIVATIONS[activation](features)
+        inputs.append(features)
         layer = layers[f"Dense_{i}"]
         features = dense(features, layer["kernel"], layer["bias"])
-    return features[0]
+        if offsets is not None:
+            features = features + offsets[i]
+    return features[0], inputs
 
 
 class Dense(nn.Module):

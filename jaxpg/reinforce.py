@@ -162,60 +162,62 @@ def reinforce_loss(policy_params, network, transitions, advantages):
 
 
 def loss_and_grad(policy_params, network, transitions, advantages):
-    """`reinforce_loss` and its gradient, accumulated step by step in a scan over time.
+    """`reinforce_loss` and its gradient: every step's share at once, added up over time in a loop.
 
-    Every episode's steps get their own copy of the parameters, so the gradient of a step's
-    log-probability is elementwise work, summed over time into `[..., E, R]` accumulators and over
-    the E episodes at the end in a fixed order: a run rounds the same alone as in a sweep. Steps
-    run in chunks of `rollout.CHUNK`, and chunks that weigh nothing are skipped: those after every
-    episode ended, which the rollout skipped too.
+    A dense layer's kernel gradient is, step by step, the outer product of the layer's input and
+    the cotangent of its output. Both come for every step of every episode in one vectorised pass
+    (the cotangents as the gradient with respect to zero offsets on each layer's output). A loop
+    over the steps that any episode lived then adds the outer products up per episode, in time
+    order, and the E episodes are summed at the end in a fixed order: a run rounds the same alone
+    as in a sweep. A loop step is a few multiply-adds on small accumulators `[K, N, E, R]`, few
+    enough kernels for XLA to run them one after another rather than schedule them as a graph.
 
     Returns:
       (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
     """
-    num_steps = advantages.shape[0]
     runs = advantages.ndim - 2
-    chunk = min(rollout.CHUNK, num_steps)
-    num_chunks = -(-num_steps // chunk)
+    weights = jnp.where(transitions.alive, advantages, 0.0)
+    count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
+    layers = policy_params["params"]
+    names = [f"Dense_{i}" for i in range(len(layers))]
 
-    def per_episode(leaf):  # [..., *runs] -> [..., E, *runs]
-        at = leaf.ndim - runs
-        return jnp.broadcast_to(jnp.expand_dims(leaf, at), leaf.shape[:at] + advantages.shape[1:])
+    # Every step at once: its weighted log-probability, each layer's input and output cotangent.
+    def log_probs(offsets):
+        logits, inputs = policies.forward_layers(
+            policy_params, transitions.obs, network.activation, offsets)
+        return policies.log_prob(logits, transitions.action), inputs
+
+    offsets = [jnp.zeros((layers[name]["bias"].shape[0], *weights.shape), weights.dtype)
+               for name in names]
+    log_prob, vjp, inputs = jax.vjp(log_probs, offsets, has_aux=True)
+    (cotangents,) = vjp(weights)  # [N, T, E, R] per layer, like its inputs [K, T, E, R]
+    terms = weights * log_prob
+
+    # Summed over time per episode; steps after every episode ended weigh nothing.
+    def add_step(t, totals):
+        def at(array, axis):
+            return jax.lax.dynamic_index_in_dim(array, t, axis, keepdims=False)
+
+        loss_total, layer_totals = totals
+        added = [(kernel + at(x, 1)[:, None] * at(d, 1)[None], bias + at(d, 1))
+                 for (kernel, bias), x, d in zip(layer_totals, inputs, cotangents)]
+        return loss_total + at(terms, 0), added
+
+    episode = weights.shape[1:]
+    zeros = (jnp.zeros(episode, weights.dtype),
+             [(jnp.zeros((x.shape[0], d.shape[0], *episode), weights.dtype),
+               jnp.zeros((d.shape[0], *episode), weights.dtype))
+              for x, d in zip(inputs, cotangents)])
+    lived = jnp.max(jnp.sum(transitions.alive, axis=0))
+    totals = jax.lax.fori_loop(0, lived, add_step, zeros)
 
     def over_episodes(total):  # -[..., E, *runs] summed over E, per alive step
         return -sums.invariant_sum(total, total.ndim - runs - 1) / count
 
-    def in_chunks(leaf):
-        pad = [(0, num_chunks * chunk - num_steps)] + [(0, 0)] * (leaf.ndim - 1)
-        return jnp.pad(leaf, pad).reshape(num_chunks, chunk, *leaf.shape[1:])
-
-    def one_step(totals, step):
-        obs, action, weight = step
-
-        def log_prob(params):
-            logits = policies.forward(params, jnp.moveaxis(obs, 0, -1), network.activation)
-            return policies.log_prob(logits, action)
-
-        log_probs, vjp = jax.vjp(log_prob, params)
-        return jax.tree.map(jnp.add, totals, (weight * log_probs, *vjp(weight))), None
-
-    def play(totals, steps):
-        return jax.lax.scan(one_step, totals, steps)[0]
-
-    def skip(totals, steps):
-        return totals
-
-    def one_chunk(totals, steps):
-        return jax.lax.cond(jnp.any(steps[2] != 0), play, skip, totals, steps), None
-
-    weights = jnp.where(transitions.alive, advantages, 0.0)
-    count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
-    params = jax.tree.map(per_episode, policy_params)
-    zeros = jax.tree.map(jnp.zeros_like, (weights[0], params))
-    obs = jnp.moveaxis(transitions.obs, -1, 1)  # [T, 4, E, R]: each step's features contiguous
-    steps = jax.tree.map(in_chunks, (obs, transitions.action, weights))
-    totals, _ = jax.lax.scan(one_chunk, zeros, steps)
-    return jax.tree.map(over_episodes, totals)
+    loss, layer_totals = jax.tree.map(over_episodes, totals)
+    grads = {"params": {name: {"kernel": kernel, "bias": bias}
+                        for name, (kernel, bias) in zip(names, layer_totals)}}
+    return loss, grads
 
 
 def global_norm(tree):

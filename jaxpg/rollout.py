@@ -53,6 +53,24 @@ def _select(done, old, new):
     return jax.tree.map(lambda o, n: jnp.where(done, o, n), old, new)
 
 
+def _record(features, action, reward, alive):
+    """One step's transition as one array `[7, E, ...]`: observation features, action, reward, alive."""
+    dtype = features.dtype
+    return jnp.concatenate(
+        [features, jnp.stack([action.astype(dtype), reward.astype(dtype), alive.astype(dtype)])])
+
+
+def _transitions(records):
+    """`Transition` from records `[T, 7, E, ...]`."""
+    # Observations are stored features first, each step's four values contiguous for the policy
+    # and for the gradient that reads them back (`[T, 4, E]`, which XLA keeps as it is when
+    # a consumer moves the features first again).
+    return Transition(obs=jnp.moveaxis(records[:, :4], 1, -1),
+                      action=records[:, 4].astype(jnp.int32),
+                      reward=records[:, 5],
+                      alive=records[:, 6] != 0)
+
+
 def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
     """Plays `num_episodes` episodes of at most `max_steps` steps with `policy`.
 
@@ -78,44 +96,40 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
     chunk = min(CHUNK, max_steps)
     num_chunks = -(-max_steps // chunk)
     noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes))
+    steps = jnp.arange(num_chunks * chunk, dtype=jnp.int32).reshape(num_chunks, chunk)
 
-    def one_step(carry, u):
-        state, done = carry
-        features = state.to_array(axis=0)  # the observation, [4, E]
+    # The carry is one array, the features and whether the episode ended `[5, E, R]`, and so is a
+    # step's record: a step is then few enough kernels for XLA to run them one after another
+    # rather than schedule them as a graph, several times faster for small batches.
+    def one_step(carry, step):
+        u, t = step
+        features, done = carry[:4], carry[4] != 0
+        state = cartpole.CartPoleState(*features, time=init_state.time + t)
         action = policy(jnp.moveaxis(features, 0, -1), u)
         _, next_state, reward, terminated, truncated = cartpole.step(state, action, env_params)
         alive = ~done
-        reward = jnp.where(alive, reward, 0.0)
-        next_state = _select(done, state, next_state)
+        record = _record(features, action, jnp.where(alive, reward, 0.0), alive)
+        next_features = jnp.where(done, features, next_state.to_array(axis=0))
         done = done | terminated | truncated
-        return (next_state, done), Transition(features, action, reward, alive)
+        return jnp.concatenate([next_features, done[None].astype(features.dtype)]), record
 
-    def play_chunk(carry, noise):
-        return jax.lax.scan(one_step, carry, noise)
+    def play_chunk(carry, steps):
+        return jax.lax.scan(one_step, carry, steps)
 
-    def skip_chunk(carry, noise):
-        state, done = carry
-        features = state.to_array(axis=0)
-        frozen = Transition(
-            obs=jnp.broadcast_to(features, (chunk, *features.shape)),
-            action=jnp.zeros(noise.shape, jnp.int32),
-            reward=jnp.zeros(noise.shape, features.dtype),
-            alive=jnp.zeros(noise.shape, bool),
-        )
-        return carry, frozen
+    def skip_chunk(carry, steps):
+        features = carry[:4]
+        frozen = _record(features, jnp.zeros(features.shape[1:], jnp.int32),
+                         jnp.zeros(features.shape[1:], features.dtype),
+                         jnp.zeros(features.shape[1:], bool))
+        return carry, jnp.broadcast_to(frozen, (chunk, *frozen.shape))
 
-    def one_chunk(carry, noise):
-        return jax.lax.cond(jnp.all(carry[1]), skip_chunk, play_chunk, carry, noise)
+    def one_chunk(carry, steps):
+        return jax.lax.cond(jnp.all(carry[4] != 0), skip_chunk, play_chunk, carry, steps)
 
-    done = jnp.zeros((num_episodes, *runs), dtype=bool)
-    _, transitions = jax.lax.scan(one_chunk, (init_state, done), noise)
-    transitions = jax.tree.map(
-        lambda leaf: leaf.reshape(num_chunks * chunk, *leaf.shape[2:])[:max_steps], transitions
-    )
-    # Observations are stored features first, each step's four values contiguous for the policy
-    # and for the gradient that reads them back (`[T, 4, E]`, which XLA keeps as it is when
-    # a consumer moves the features first again).
-    transitions = transitions._replace(obs=jnp.moveaxis(transitions.obs, 1, -1))
+    features = init_state.to_array(axis=0)
+    carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
+    _, records = jax.lax.scan(one_chunk, carry, (noise, steps))
+    transitions = _transitions(records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps])
     returns = transitions.reward.sum(axis=0)
     lengths = transitions.alive.sum(axis=0)
     return Episodes(transitions, returns, lengths)
