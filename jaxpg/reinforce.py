@@ -338,7 +338,7 @@ def _iterate_stacked(config, train_state, hyperparams):
     return train_state, jnp.stack(metrics)
 
 
-CPU_BLOCK = 128  # runs a CPU trains together: their [T, E, R] arrays stay in its caches
+CPU_BLOCK = 64  # runs a CPU trains together: their [T, E, R] arrays stay in its caches
 
 
 def run(program, iterations, parts, on_iteration=None):
