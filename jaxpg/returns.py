@@ -6,14 +6,13 @@ import numpy as np
 
 from jaxpg import sums
 
-UNROLL = 10
-
 
 def discount_masked(rewards, alive, discount_rate):
     """Discounted returns of `[T, E, ...]` rewards; 0 on the steps that are not alive.
 
-    G_t = r_t + discount_rate * G_{t+1}, with a reverse scan over time, unrolled by `UNROLL` steps
-    so that a loop iteration is one fused kernel rather than a handful per step.
+    G_t = r_t + discount_rate * G_{t+1}, with a reverse scan over time: a loop step is one fused
+    kernel and its store, few enough for XLA to run them one after another rather than schedule
+    them as a graph (faster than unrolling, whose longer loop bodies it schedules).
     """
     rewards = jnp.where(alive, rewards, 0.0)
 
@@ -21,9 +20,7 @@ def discount_masked(rewards, alive, discount_rate):
         ret = reward + discount_rate * future
         return ret, ret
 
-    _, returns = jax.lax.scan(
-        accumulate, jnp.zeros_like(rewards[0]), rewards, reverse=True, unroll=UNROLL
-    )
+    _, returns = jax.lax.scan(accumulate, jnp.zeros_like(rewards[0]), rewards, reverse=True)
     return jnp.where(alive, returns, 0.0)
 
 
