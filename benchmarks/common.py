@@ -13,6 +13,8 @@ import statistics
 import sys
 import time
 
+from jaxpg.reinforce import usable_cores  # noqa: F401  (importing JAX starts no backend)
+
 RESULTS_DIR = pathlib.Path(__file__).resolve().parent / "results"
 
 PACKAGES = ("jax", "jaxlib", "numpy", "gymnasium", "flax", "optax", "chex", "gymnax")
@@ -41,11 +43,6 @@ def _memory_gib():
     except OSError:
         pass
     return None
-
-
-def usable_cores():
-    """The cores this process may run on (all of them where the OS does not say)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
 def machine_info():

@@ -11,7 +11,7 @@ Step counts:
   mean_length * episodes); the only kind the numpy trainer takes.
 - padded steps: iterations * episodes * max_steps * R, the fixed horizon of every iteration.
 - skipped: the share of padded steps jaxpg never computes, because every episode of every run in
-  a block of `reinforce.CPU_BLOCK` runs had ended before their chunk of `rollout.CHUNK` steps
+  a block of runs (`reinforce.cpu_blocks`) had ended before their chunk of `rollout.CHUNK` steps
   (from each block's longest episode in each iteration).
 
 Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
@@ -42,8 +42,8 @@ def skipped_fraction(config, max_lengths):
     """Share of padded steps in chunks after every episode ended; `max_lengths` `[R, I]`."""
     chunk = min(rollout.CHUNK, config.max_steps)
     computed = 0.0
-    for start in range(0, max_lengths.shape[0], reinforce.CPU_BLOCK):
-        block = max_lengths[start : start + reinforce.CPU_BLOCK]
+    for start, stop in reinforce.cpu_blocks(max_lengths.shape[0]):
+        block = max_lengths[start:stop]
         longest = np.max(block, axis=0)  # a block skips a chunk once all its episodes ended
         steps = np.minimum(np.ceil(longest / chunk) * chunk, config.max_steps)
         computed += float(np.sum(steps)) * block.shape[0]

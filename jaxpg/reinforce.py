@@ -338,15 +338,36 @@ def _iterate_stacked(config, train_state, hyperparams):
     return train_state, jnp.stack(metrics)
 
 
-CPU_BLOCK = 64  # runs a CPU trains together: their [T, E, R] arrays stay in its caches
+CPU_BLOCK = 64  # runs a CPU trains together at most: their [T, E, R] arrays stay in its caches
+
+
+def usable_cores():
+    """The cores this process may run on (all of them where the OS does not say)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+
+
+def cpu_blocks(num_runs):
+    """`(start, stop)` of the blocks in which a CPU trains `num_runs` runs, one thread per core.
+
+    About equal blocks of at most `CPU_BLOCK` runs, as many as a multiple of the usable cores, so
+    that every core trains and all finish together. Up to `CPU_BLOCK` runs split over the cores
+    only if they split evenly: a block of another size would compile another program.
+    """
+    cores = usable_cores()
+    if num_runs <= CPU_BLOCK:
+        num_blocks = cores if num_runs % cores == 0 else 1
+    else:
+        num_blocks = -(-num_runs // (CPU_BLOCK * cores)) * cores
+    size = -(-num_runs // num_blocks)
+    return [(start, min(start + size, num_runs)) for start in range(0, num_runs, size)]
 
 
 def run(program, iterations, parts, on_iteration=None):
     """Trains each part's runs for `iterations` iterations, every part on its own device.
 
-    On a CPU a part trains in blocks of at most `CPU_BLOCK` runs, spread over one thread per core:
-    larger arrays no longer fit in the caches, and XLA runs such small programs on the thread
-    that calls them. Runs train alike in any batch, so the blocks change nothing in the results.
+    On a CPU a part trains in `cpu_blocks`, spread over one thread per core: larger arrays no
+    longer fit in the caches, and XLA runs such small programs on the thread that calls them. Runs
+    train alike in any batch, so the blocks change nothing in the results.
 
     Args:
       program: from `compiled_program`.
@@ -365,7 +386,7 @@ def run(program, iterations, parts, on_iteration=None):
             owners.append(index)
     history = [[None] * len(blocks) for _ in range(iterations)]
     finals = [None] * len(blocks)
-    num_workers = min(len(blocks), os.cpu_count() or 1)
+    num_workers = min(len(blocks), usable_cores())
     finished = [0] * iterations  # workers that dispatched each iteration
     failed = []  # workers that raised
     progress_made = threading.Condition()
@@ -413,14 +434,13 @@ def run(program, iterations, parts, on_iteration=None):
 
 
 def _blocks(part):
-    """A part's runs in blocks of at most `CPU_BLOCK` on a CPU; the whole part elsewhere."""
+    """A part's runs in `cpu_blocks` on a CPU; the whole part elsewhere."""
     keys = part[0]
     device = next(iter(keys.devices())) if isinstance(keys, jax.Array) else jax.devices()[0]
-    num_runs = keys.shape[0]
-    if device.platform != "cpu" or num_runs <= CPU_BLOCK:
+    if device.platform != "cpu":
         return [part]
-    return [jax.tree.map(lambda leaf: leaf[start : start + CPU_BLOCK], part)
-            for start in range(0, num_runs, CPU_BLOCK)]
+    return [jax.tree.map(lambda leaf: leaf[start:stop], part)
+            for start, stop in cpu_blocks(keys.shape[0])]
 
 
 def run_keys(seeds):
