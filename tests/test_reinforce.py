@@ -88,6 +88,25 @@ def test_accumulated_gradient_of_runs_side_by_side():
                                     rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.parametrize("hidden, activation", [((3, 4), "tanh"), ((7,), "relu")])
+def test_accumulated_gradient_of_other_networks(hidden, activation):
+    """Deeper and wider networks, other activations, an episode longer than two 20-step chunks."""
+    config = TrainConfig(episodes=12, max_steps=45, hidden=hidden, activation=activation)
+    network = config.network
+    policy_params = policies.init_network(jax.random.PRNGKey(8), network)
+    transitions = rollout.rollout(
+        jax.random.PRNGKey(7), policies.network_policy(network, policy_params),
+        config.env_params, config.episodes, config.max_steps,
+    ).transitions
+    assert int(transitions.alive.sum(axis=0).max()) == 45  # one episode lasts all three chunks
+    advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
+    expected = jax.value_and_grad(reinforce.reinforce_loss)(
+        policy_params, network, transitions, advantages)
+    chex.assert_trees_all_close(
+        reinforce.loss_and_grad(policy_params, network, transitions, advantages), expected,
+        rtol=1e-5, atol=1e-7)
+
+
 @pytest.fixture(scope="module")
 def book_run():
     return train(TrainConfig(), seed=42, show_progress=False)
@@ -198,6 +217,21 @@ def test_blocks_on_several_threads_report_every_iteration_in_order():
     assert [iteration for iteration, _ in reported] == [0, 1, 2, 3]
     for iteration, means in reported:
         np.testing.assert_array_equal(means, result.metrics.mean_return[:, iteration])
+
+
+@pytest.mark.parametrize("num_runs", [1, 2, 3, 8, 63, 64, 65, 129, 1030])
+def test_cpu_blocks_cover_the_runs_in_at_most_two_sizes(num_runs):
+    blocks = reinforce.cpu_blocks(num_runs)
+    assert blocks[0][0] == 0 and blocks[-1][1] == num_runs
+    assert all(stop == start for (_, stop), (start, _) in zip(blocks, blocks[1:]))
+    sizes = [stop - start for start, stop in blocks]
+    assert max(sizes) <= reinforce.CPU_BLOCK and min(sizes) > 0
+    assert sizes[:-1] == [sizes[0]] * (len(sizes) - 1)  # one size, the last block maybe smaller
+    cores = reinforce.usable_cores()
+    if num_runs > reinforce.CPU_BLOCK:
+        assert len(blocks) % cores == 0  # every core trains, and they finish together
+    else:
+        assert len(blocks) == (cores if num_runs % cores == 0 else 1)
 
 
 def test_a_failing_run_raises_instead_of_hanging():
