@@ -13,7 +13,7 @@ import statistics
 import sys
 import time
 
-from jaxpg.reinforce import usable_cores  # noqa: F401  (importing JAX starts no backend)
+from jaxpg.reinforce import usable_cores
 
 RESULTS_DIR = pathlib.Path(__file__).resolve().parent / "results"
 

@@ -30,7 +30,8 @@ import time
 import common
 
 if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
-    # Before JAX starts: one CPU device per core, for jaxpg-sharded. GPUs are unaffected.
+    # Before JAX starts its backend (importing it starts none): one CPU device per core, for
+    # jaxpg-sharded. GPUs are unaffected.
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_"
                                f"device_count={common.usable_cores()}").strip()
 

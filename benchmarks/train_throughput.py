@@ -10,9 +10,10 @@ Step counts:
 - simulated steps: steps inside an episode before it ended (sum over runs and iterations of
   mean_length * episodes); the only kind the numpy trainer takes.
 - padded steps: iterations * episodes * max_steps * R, the fixed horizon of every iteration.
-- skipped: the share of padded steps jaxpg never computes, because every episode of every run in
-  a block of runs (`reinforce.cpu_blocks`) had ended before their chunk of `rollout.CHUNK` steps
-  (from each block's longest episode in each iteration).
+- skipped: the share of padded steps the rollout never simulates, because every episode of every
+  run in a block of runs (`reinforce.cpu_blocks`) had ended before their chunk of `rollout.CHUNK`
+  steps (from each block's longest episode in each iteration). The gradient's time loop stops
+  there too; its step signals are computed for all steps at once.
 
 Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
 

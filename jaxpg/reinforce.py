@@ -171,6 +171,7 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     order, and the E episodes are summed at the end in a fixed order: a run rounds the same alone
     as in a sweep. A loop step is a few multiply-adds on small accumulators `[K, N, E, R]`, few
     enough kernels for XLA to run them one after another rather than schedule them as a graph.
+    The step signals take `[K, T, E, R]` floats per layer, which a sweep's memory budget counts.
 
     Returns:
       (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
@@ -182,14 +183,14 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     names = [f"Dense_{i}" for i in range(len(layers))]
 
     # Every step at once: its weighted log-probability, each layer's input and output cotangent.
-    def log_probs(offsets):
+    def forward(offsets):
         logits, inputs = policies.forward_layers(
             policy_params, transitions.obs, network.activation, offsets)
         return policies.log_prob(logits, transitions.action), inputs
 
     offsets = [jnp.zeros((layers[name]["bias"].shape[0], *weights.shape), weights.dtype)
                for name in names]
-    log_prob, vjp, inputs = jax.vjp(log_probs, offsets, has_aux=True)
+    log_prob, vjp, inputs = jax.vjp(forward, offsets, has_aux=True)
     (cotangents,) = vjp(weights)  # [N, T, E, R] per layer, like its inputs [K, T, E, R]
     terms = weights * log_prob
 
@@ -203,12 +204,13 @@ def loss_and_grad(policy_params, network, transitions, advantages):
                  for (kernel, bias), x, d in zip(layer_totals, inputs, cotangents)]
         return loss_total + at(terms, 0), added
 
-    episode = weights.shape[1:]
-    zeros = (jnp.zeros(episode, weights.dtype),
-             [(jnp.zeros((x.shape[0], d.shape[0], *episode), weights.dtype),
-               jnp.zeros((d.shape[0], *episode), weights.dtype))
+    episode_shape = weights.shape[1:]
+    zeros = (jnp.zeros(episode_shape, weights.dtype),
+             [(jnp.zeros((x.shape[0], d.shape[0], *episode_shape), weights.dtype),
+               jnp.zeros((d.shape[0], *episode_shape), weights.dtype))
               for x, d in zip(inputs, cotangents)])
-    lived = jnp.max(jnp.sum(transitions.alive, axis=0))
+    any_alive = jnp.any(transitions.alive, axis=tuple(range(1, weights.ndim)))  # [T]
+    lived = jnp.max(jnp.where(any_alive, jnp.arange(1, weights.shape[0] + 1), 0))
     totals = jax.lax.fori_loop(0, lived, add_step, zeros)
 
     def over_episodes(total):  # -[..., E, *runs] summed over E, per alive step
@@ -343,23 +345,26 @@ CPU_BLOCK = 64  # runs a CPU trains together at most: their [T, E, R] arrays sta
 
 def usable_cores():
     """The cores this process may run on (all of them where the OS does not say)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def cpu_blocks(num_runs):
     """`(start, stop)` of the blocks in which a CPU trains `num_runs` runs, one thread per core.
 
-    About equal blocks of at most `CPU_BLOCK` runs, as many as a multiple of the usable cores, so
-    that every core trains and all finish together. Up to `CPU_BLOCK` runs split over the cores
-    only if they split evenly: a block of another size would compile another program.
+    Blocks of at most `CPU_BLOCK` runs whose sizes differ by at most one (at most two programs to
+    compile), as many as a multiple of the usable cores, so that every core trains and all finish
+    together. Up to `CPU_BLOCK` runs split over the cores only if they split evenly: a block of
+    another size would compile another program.
     """
     cores = usable_cores()
     if num_runs <= CPU_BLOCK:
-        num_blocks = cores if num_runs % cores == 0 else 1
+        num_blocks = cores if num_runs and num_runs % cores == 0 else 1
     else:
-        num_blocks = -(-num_runs // (CPU_BLOCK * cores)) * cores
-    size = -(-num_runs // num_blocks)
-    return [(start, min(start + size, num_runs)) for start in range(0, num_runs, size)]
+        num_blocks = min(num_runs, -(-num_runs // (CPU_BLOCK * cores)) * cores)
+    bounds = [i * num_runs // num_blocks for i in range(num_blocks + 1)]
+    return list(zip(bounds[:-1], bounds[1:]))
 
 
 def run(program, iterations, parts, on_iteration=None):

@@ -54,7 +54,7 @@ def _select(done, old, new):
 
 
 def _record(features, action, reward, alive):
-    """One step's transition as one array `[7, E, ...]`: observation features, action, reward, alive."""
+    """One step's transition as one array `[7, E, ...]`: features, action, reward, alive."""
     dtype = features.dtype
     return jnp.concatenate(
         [features, jnp.stack([action.astype(dtype), reward.astype(dtype), alive.astype(dtype)])])

@@ -90,7 +90,7 @@ def test_accumulated_gradient_of_runs_side_by_side():
 
 @pytest.mark.parametrize("hidden, activation", [((3, 4), "tanh"), ((7,), "relu")])
 def test_accumulated_gradient_of_other_networks(hidden, activation):
-    """Deeper and wider networks, other activations, an episode longer than two 20-step chunks."""
+    """Deeper and wider networks and other activations, one episode lasting all 45 steps."""
     config = TrainConfig(episodes=12, max_steps=45, hidden=hidden, activation=activation)
     network = config.network
     policy_params = policies.init_network(jax.random.PRNGKey(8), network)
@@ -98,8 +98,29 @@ def test_accumulated_gradient_of_other_networks(hidden, activation):
         jax.random.PRNGKey(7), policies.network_policy(network, policy_params),
         config.env_params, config.episodes, config.max_steps,
     ).transitions
-    assert int(transitions.alive.sum(axis=0).max()) == 45  # one episode lasts all three chunks
+    assert int(transitions.alive.sum(axis=0).max()) == 45
     advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
+    expected = jax.value_and_grad(reinforce.reinforce_loss)(
+        policy_params, network, transitions, advantages)
+    chex.assert_trees_all_close(
+        reinforce.loss_and_grad(policy_params, network, transitions, advantages), expected,
+        rtol=1e-5, atol=1e-7)
+
+
+def test_accumulated_gradient_of_steps_that_are_no_prefix():
+    """Alive steps need not start an episode: the loop runs to the last alive step of any."""
+    config = TrainConfig(episodes=3, max_steps=12)
+    network = config.network
+    policy_params = policies.init_network(jax.random.PRNGKey(3), network)
+    transitions = rollout.rollout(
+        jax.random.PRNGKey(4), policies.network_policy(network, policy_params),
+        config.env_params, config.episodes, config.max_steps,
+    ).transitions
+    steps = jnp.arange(config.max_steps)[:, None]
+    alive = jnp.stack([(steps[:, 0] >= 6) & (steps[:, 0] < 10), steps[:, 0] < 3,
+                       steps[:, 0] % 2 == 0], axis=1)
+    transitions = transitions._replace(alive=alive, reward=alive.astype(jnp.float32))
+    advantages = returns.discount_and_normalize_masked(transitions.reward, alive, 0.95)
     expected = jax.value_and_grad(reinforce.reinforce_loss)(
         policy_params, network, transitions, advantages)
     chex.assert_trees_all_close(
@@ -220,16 +241,16 @@ def test_blocks_on_several_threads_report_every_iteration_in_order():
 
 
 @pytest.mark.parametrize("num_runs", [1, 2, 3, 8, 63, 64, 65, 129, 1030])
-def test_cpu_blocks_cover_the_runs_in_at_most_two_sizes(num_runs):
+@pytest.mark.parametrize("cores", [1, 2, 3, 16, 256])
+def test_cpu_blocks_cover_the_runs_in_at_most_two_sizes(num_runs, cores, monkeypatch):
+    monkeypatch.setattr(reinforce, "usable_cores", lambda: cores)
     blocks = reinforce.cpu_blocks(num_runs)
     assert blocks[0][0] == 0 and blocks[-1][1] == num_runs
     assert all(stop == start for (_, stop), (start, _) in zip(blocks, blocks[1:]))
     sizes = [stop - start for start, stop in blocks]
-    assert max(sizes) <= reinforce.CPU_BLOCK and min(sizes) > 0
-    assert sizes[:-1] == [sizes[0]] * (len(sizes) - 1)  # one size, the last block maybe smaller
-    cores = reinforce.usable_cores()
+    assert max(sizes) <= reinforce.CPU_BLOCK and max(sizes) - min(sizes) <= 1 and min(sizes) > 0
     if num_runs > reinforce.CPU_BLOCK:
-        assert len(blocks) % cores == 0  # every core trains, and they finish together
+        assert len(blocks) % cores == 0 or len(blocks) == num_runs  # every core trains
     else:
         assert len(blocks) == (cores if num_runs % cores == 0 else 1)
 
