@@ -169,8 +169,9 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     (the cotangents as the gradient with respect to zero offsets on each layer's output). A loop
     up to the last step that any episode is alive in then adds the outer products up per episode,
     in time order, and the E episodes are summed at the end in a fixed order: a run rounds the
-    same alone as in a sweep. A loop step is a few multiply-adds on small accumulators `[K, N, E, R]`, few
-    enough kernels for XLA to run them one after another rather than schedule them as a graph.
+    same alone as in a sweep. A loop step is a few multiply-adds on small accumulators
+    `[K, N, E, R]`, few enough kernels for XLA to run them one after another rather than schedule
+    them as a graph.
     The step signals take `[K, T, E, R]` floats per layer, which a sweep's memory budget counts.
 
     Returns:
