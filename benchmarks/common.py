@@ -70,6 +70,7 @@ def library_versions():
 
         versions["jax_backend"] = jax.default_backend()
         versions["jax_devices"] = [str(d) for d in jax.devices()]
+        versions["xla_flags"] = os.environ.get("XLA_FLAGS", "")
     except ImportError:
         pass
     return versions

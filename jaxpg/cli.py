@@ -360,5 +360,13 @@ def main(argv=None):
         return 130
 
 
+def run(argv=None):
+    """The installed `jaxpg` command: `main` in a process with jaxpg's XLA setting (`flags`)."""
+    from jaxpg import flags
+
+    flags.compile_loops_whole()
+    sys.exit(main(argv))
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()
