@@ -1,7 +1,7 @@
 """Compile time, run time and environment steps per second of REINFORCE training, jaxpg vs numpy.
 
 jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) at once with
-`reinforce.run`, one compiled iteration program called per iteration; compiling its two programs
+`reinforce.run`, whose compiled program runs ten iterations a call; compiling its two programs
 (`.lower(...).compile()` of `init` and `iterate`) is timed apart from the runs, which follow one
 untimed warm-up run. The numpy book implementation (`book_numpy.py`: one seed, one step at a
 time on Gymnasium's CartPole-v1) runs in the same process for scale.
@@ -17,6 +17,9 @@ Step counts:
 
 Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
 
+The process runs with the XLA setting of the `jaxpg` command (`jaxpg.flags`), unless XLA_FLAGS
+already passes backend options: `XLA_FLAGS=--xla_backend_extra_options=` measures XLA's defaults.
+
     python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
     python benchmarks/train_throughput.py --quick            # a quick check that everything runs
 """
@@ -28,8 +31,10 @@ import book_numpy
 import common
 import numpy as np
 
-from jaxpg import reinforce, rollout
+from jaxpg import flags, reinforce, rollout
 from jaxpg.sweep import check_seeds, expand_grid, run_inputs
+
+flags.compile_loops_whole()  # before JAX starts its backends
 
 
 def step_counts(config, num_runs, mean_lengths):
@@ -58,7 +63,7 @@ def measure_jaxpg(config, num_runs, repeats):
     program = reinforce.compiled_program(config)
     _, init_times = common.compile_jitted(program.init, keys, hyperparams)
     _, compile_times = common.compile_jitted(
-        program.iterate, program.init(keys, hyperparams), hyperparams
+        program.iterate, program.init(keys, hyperparams), hyperparams, np.int32(1)
     )
     parts = [(keys, hyperparams)]
     reinforce.run(program, config.iterations, parts)  # warm-up: fills jit's own cache

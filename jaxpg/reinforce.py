@@ -5,15 +5,16 @@ discounts and normalises the rewards, and takes one optimizer step on the REINFO
 iteration of many runs together (each run on the last axis of every array) is one compiled
 program, so that many seeds and hyperparameter settings train at once.
 
-The host calls that program once per iteration and shows progress as iterations complete: the
-program needs no callback into Python, and a program without callbacks can be kept in JAX's
-persistent compilation cache, so a second process does not compile again.
+The host calls that program for `ITERATIONS_PER_CALL` iterations at a time and shows progress as
+they complete: the program needs no callback into Python, and a program without callbacks can be
+kept in JAX's persistent compilation cache, so a second process does not compile again.
 """
 
 import concurrent.futures
 import dataclasses
 import functools
 import inspect
+import math
 import os
 import threading
 from collections.abc import Callable
@@ -182,18 +183,7 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
     layers = policy_params["params"]
     names = [f"Dense_{i}" for i in range(len(layers))]
-
-    # Every step at once: its weighted log-probability, each layer's input and output cotangent.
-    def forward(offsets):
-        logits, inputs = policies.forward_layers(
-            policy_params, transitions.obs, network.activation, offsets)
-        return policies.log_prob(logits, transitions.action), inputs
-
-    offsets = [jnp.zeros((layers[name]["bias"].shape[0], *weights.shape), weights.dtype)
-               for name in names]
-    log_prob, vjp, inputs = jax.vjp(forward, offsets, has_aux=True)
-    (cotangents,) = vjp(weights)  # [N, T, E, R] per layer, like its inputs [K, T, E, R]
-    terms = weights * log_prob
+    terms, inputs, cotangents = _step_signals(policy_params, network, transitions, weights)
 
     # Summed over time per episode; steps after every episode ended weigh nothing.
     def add_step(t, totals):
@@ -221,6 +211,40 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     grads = {"params": {name: {"kernel": kernel, "bias": bias}
                         for name, (kernel, bias) in zip(names, layer_totals)}}
     return loss, grads
+
+
+def _step_signals(policy_params, network, transitions, weights):
+    """Every step's weighted log-probability `[T, E, *runs]`, and each dense layer's input
+    features `[K, T, E, *runs]` and output cotangent `[N, T, E, *runs]`, computed at once.
+
+    The cotangents are the gradient with respect to zero offsets on each layer's output. A run
+    alone computes them over its steps and episodes as one axis, without run axes: XLA vectorises
+    over the last axis, which a run axis of size one would be.
+    """
+    shape = weights.shape
+    obs, action = transitions.obs, transitions.action
+    alone = math.prod(shape[2:]) == 1
+    if alone:
+        policy_params = _without_runs(policy_params, len(shape) - 2)
+        obs, action, weights = obs.reshape(-1, obs.shape[-1]), action.reshape(-1), weights.reshape(-1)
+
+    def forward(offsets):
+        logits, inputs = policies.forward_layers(policy_params, obs, network.activation, offsets)
+        return policies.log_prob(logits, action), inputs
+
+    offsets = [jnp.zeros((layer["bias"].shape[0], *weights.shape), weights.dtype)
+               for layer in policy_params["params"].values()]
+    log_prob, vjp, inputs = jax.vjp(forward, offsets, has_aux=True)
+    (cotangents,) = vjp(weights)
+    signals = (weights * log_prob, inputs, cotangents)
+    if alone:  # back to [..., T, E, *runs]
+        signals = jax.tree.map(lambda leaf: leaf.reshape(*leaf.shape[:-1], *shape), signals)
+    return signals
+
+
+def _without_runs(policy_params, runs):
+    """The parameters of a run alone without their `runs` trailing run axes, all of size one."""
+    return jax.tree.map(lambda leaf: leaf.reshape(leaf.shape[:leaf.ndim - runs]), policy_params)
 
 
 def global_norm(tree):
@@ -269,11 +293,18 @@ def iterate(config, train_state, hyperparams):
     network = config.network
     key, key_rollout = rng.split(train_state.key)
 
-    # Play the episodes of every run with its current policy: [T, E, R] transitions.
-    policy = policies.network_policy(network, train_state.policy_params)
+    # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
+    # plays without its run axis: XLA vectorises over the last axis, which that one would be.
+    alone = key_rollout.shape[0] == 1
+    params = _without_runs(train_state.policy_params, 1) if alone else train_state.policy_params
     episodes = rollout.rollout(
-        key_rollout, policy, config.env_params, config.episodes, config.max_steps
+        key_rollout[0] if alone else key_rollout, policies.network_policy(network, params),
+        config.env_params, config.episodes, config.max_steps,
     )
+    if alone:
+        episodes = rollout.Episodes(
+            jax.tree.map(lambda leaf: jnp.expand_dims(leaf, 2), episodes.transitions),
+            episodes.returns[:, None], episodes.lengths[:, None])
     transitions = episodes.transitions
 
     # Discounted returns, normalised over every step of every episode of a run.
@@ -303,12 +334,16 @@ def iterate(config, train_state, hyperparams):
     return TrainState(policy_params, opt_state, key), metrics
 
 
+ITERATIONS_PER_CALL = 10  # iterations a call of the program runs at most
+
+
 class Program(NamedTuple):
     """The compiled training of R runs at once, for one `TrainConfig`."""
 
     init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
-    # (TrainState [R], Hyperparams [R]) -> (TrainState [R], Metrics' fields stacked
-    # [len(Metrics._fields), R]): one array per iteration to fetch rather than one per field.
+    # (TrainState [R], Hyperparams [R], count) -> (TrainState [R], Metrics' fields stacked
+    # [ITERATIONS_PER_CALL, len(Metrics._fields), R]): `count` (at most ITERATIONS_PER_CALL)
+    # iterations, whose metrics fill the first `count` rows; one array to fetch per call.
     iterate: Callable
 
 
@@ -336,9 +371,21 @@ def _program(config):
     )
 
 
-def _iterate_stacked(config, train_state, hyperparams):
-    train_state, metrics = iterate(config, train_state, hyperparams)
-    return train_state, jnp.stack(metrics)
+def _iterate_stacked(config, train_state, hyperparams, count):
+    def one(i, carry):
+        train_state, history = carry
+        train_state, metrics = iterate(config, train_state, hyperparams)
+        return train_state, history.at[i].set(jnp.stack(metrics))
+
+    history = jnp.zeros((ITERATIONS_PER_CALL, len(Metrics._fields),
+                         *hyperparams.learning_rate.shape), jnp.float32)
+    return jax.lax.fori_loop(0, count, one, (train_state, history))
+
+
+def calls(iterations):
+    """`(first iteration, count)` of each program call that trains for `iterations` iterations."""
+    return [(start, min(ITERATIONS_PER_CALL, iterations - start))
+            for start in range(0, iterations, ITERATIONS_PER_CALL)]
 
 
 CPU_BLOCK = 64  # runs a CPU trains together at most: their [T, E, R] arrays stay in its caches
@@ -390,21 +437,23 @@ def run(program, iterations, parts, on_iteration=None):
         for block in _blocks(part):
             blocks.append(block)
             owners.append(index)
-    history = [[None] * len(blocks) for _ in range(iterations)]
+    schedule = calls(iterations)
+    history = [[None] * len(blocks) for _ in schedule]
     finals = [None] * len(blocks)
     num_workers = min(len(blocks), usable_cores())
-    finished = [0] * iterations  # workers that dispatched each iteration
+    finished = [0] * len(schedule)  # workers that dispatched each call
     failed = []  # workers that raised
     progress_made = threading.Condition()
 
     def train_blocks(indices):
         try:
             states = {i: program.init(*blocks[i]) for i in indices}
-            for iteration in range(iterations):
+            for call, (_, count) in enumerate(schedule):
                 for i in indices:
-                    states[i], history[iteration][i] = program.iterate(states[i], blocks[i][1])
+                    states[i], history[call][i] = program.iterate(
+                        states[i], blocks[i][1], np.int32(count))
                 with progress_made:
-                    finished[iteration] += 1
+                    finished[call] += 1
                     progress_made.notify_all()
             for i in indices:
                 finals[i] = jax.device_get(states[i])
@@ -417,21 +466,24 @@ def run(program, iterations, parts, on_iteration=None):
     with concurrent.futures.ThreadPoolExecutor(num_workers) as pool:
         workers = [pool.submit(train_blocks, range(w, len(blocks), num_workers))
                    for w in range(num_workers)]
-        for iteration in range(iterations if on_iteration is not None else 0):
+        for call, (start, count) in enumerate(schedule if on_iteration is not None else []):
             with progress_made:
-                progress_made.wait_for(lambda: finished[iteration] == num_workers or failed)
-            if finished[iteration] < num_workers:
+                progress_made.wait_for(lambda: finished[call] == num_workers or failed)
+            if finished[call] < num_workers:
                 break  # a worker failed; its error is raised below
-            shown = [Metrics(*np.asarray(m)).mean_return for m in history[iteration]]
-            on_iteration(iteration, np.concatenate(shown))
+            shown = np.concatenate([np.asarray(m)[:count, 0] for m in history[call]], axis=-1)
+            for offset, mean_returns in enumerate(shown):
+                on_iteration(start + offset, mean_returns)
         for worker in workers:
             worker.result()
 
     results = []
     for index in range(len(parts)):
         mine = [i for i, owner in enumerate(owners) if owner == index]
-        metrics = jax.device_get([[history[t][i] for i in mine] for t in range(iterations)])
-        stacked = Metrics(*np.stack([np.concatenate(m, axis=-1) for m in metrics], axis=-1))
+        metrics = jax.device_get([[history[c][i] for i in mine] for c in range(len(schedule))])
+        rows = np.concatenate([np.concatenate(m, axis=-1)[:count]
+                               for m, (_, count) in zip(metrics, schedule)])  # [I, fields, R_p]
+        stacked = Metrics(*np.moveaxis(rows, 0, -1))
         params = jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=-1),
                               *[finals[i].policy_params for i in mine])
         results.append(TrainResult(jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), params),

@@ -4,7 +4,9 @@ A policy for `rollout` is a function `(obs [E, 4], u [E]) -> action [E]` acting 
 of observations at once; `u` is uniform in [0, 1), drawn in bulk by the rollout for every step.
 `rollout` also plays R independent runs at once (R keys, a policy with R sets of weights): every
 array then has a trailing run axis, which XLA vectorises over, and run r's episodes are exactly
-those it would play alone.
+those it would play alone. Without run axes, XLA vectorises over the episodes, and `rollout` plays
+a multiple of `LANES` of them, the first ones again in the lanes left over: the policy then sees
+that many, and the copies are dropped from what `rollout` returns.
 """
 
 import functools
@@ -35,6 +37,7 @@ class Episodes(NamedTuple):
 
 
 CHUNK = 20  # steps simulated between checks whether every episode has ended
+LANES = 16  # floats in a vector of AVX-512 (two of AVX2): episodes without runs fill whole ones
 
 
 def reset_batch(key, num, env_params):
@@ -96,6 +99,10 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
     chunk = min(CHUNK, max_steps)
     num_chunks = -(-max_steps // chunk)
     noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes))
+    if not runs:  # whole vectors of episodes, the first ones again in the lanes left over
+        repeated = jnp.arange(-(-num_episodes // LANES) * LANES) % num_episodes
+        init_state = jax.tree.map(lambda leaf: leaf[repeated], init_state)
+        noise = noise[..., repeated]
     steps = jnp.arange(num_chunks * chunk, dtype=jnp.int32).reshape(num_chunks, chunk)
 
     # The carry is one array, the features and whether the episode ended `[5, E, R]`, and so is a
@@ -129,7 +136,8 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
     features = init_state.to_array(axis=0)
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
     _, records = jax.lax.scan(one_chunk, carry, (noise, steps))
-    transitions = _transitions(records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps])
+    records = records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps, :, :num_episodes]
+    transitions = _transitions(records)
     returns = transitions.reward.sum(axis=0)
     lengths = transitions.alive.sum(axis=0)
     return Episodes(transitions, returns, lengths)

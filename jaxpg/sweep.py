@@ -182,9 +182,9 @@ def train_on_devices(program, iterations, inputs, on_iteration=None):
 def device_bytes(program, iterations, num_runs):
     """Device memory that training `num_runs` runs for `iterations` iterations on one device needs.
 
-    XLA's buffer assignment for one iteration of `program` (its arguments, among them the training
+    XLA's buffer assignment for one call of `program` (its arguments, among them the training
     state; outputs; temporaries; generated code), from the compiled program's
-    `memory_analysis()`, plus every iteration's metrics, which stay on the device until the end.
+    `memory_analysis()`, plus every call's metrics, which stay on the device until the end.
     It compiles for this process's first device, as training does, so that training reuses it.
     """
     device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
@@ -196,12 +196,13 @@ def device_bytes(program, iterations, num_runs):
         lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=device),
         program.init.eval_shape(keys, hyperparams),
     )
-    _, metrics = program.iterate.eval_shape(state, hyperparams)
-    stats = program.iterate.lower(state, hyperparams).compile().memory_analysis()
-    iteration = (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
-                 + stats.generated_code_size_in_bytes - stats.alias_size_in_bytes)
-    history = iterations * sum(leaf.size * leaf.dtype.itemsize for leaf in jax.tree.leaves(metrics))
-    return iteration + history
+    count = jax.ShapeDtypeStruct((), jnp.int32, sharding=device)
+    _, metrics = program.iterate.eval_shape(state, hyperparams, count)
+    stats = program.iterate.lower(state, hyperparams, count).compile().memory_analysis()
+    call = (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
+            + stats.generated_code_size_in_bytes - stats.alias_size_in_bytes)
+    history = len(reinforce.calls(iterations)) * metrics.size * metrics.dtype.itemsize
+    return call + history
 
 
 def fitting_chunk_size(program, iterations, num_runs, memory_budget):

@@ -169,6 +169,28 @@ def test_progress_reports_every_iteration(capsys):
     assert lines[-1].split(",")[1].startswith(f" mean rewards: {result.metrics.mean_return[0, -1]:.1f}")
 
 
+def test_calls_of_several_iterations_train_as_calls_of_one():
+    config = TrainConfig(iterations=reinforce.ITERATIONS_PER_CALL + 2, episodes=2, max_steps=10)
+    program = reinforce.compiled_program(config)
+    keys = reinforce.run_keys([0, 1])
+    hyperparams = jax.tree.map(lambda v: np.full(2, v, np.float32), config.hyperparams)
+    reported = []
+    (result,) = reinforce.run(program, config.iterations, [(keys, hyperparams)],
+                              lambda iteration, _: reported.append(iteration))
+    assert reported == list(range(config.iterations))
+    assert len(reinforce.calls(config.iterations)) == 2
+
+    state, rows = program.init(keys, hyperparams), []
+    for _ in range(config.iterations):
+        state, metrics = program.iterate(state, hyperparams, np.int32(1))
+        rows.append(np.asarray(metrics)[0])
+    one_at_a_time = reinforce.Metrics(*np.moveaxis(np.stack(rows), 0, -1))  # [R, I] leaves
+    chex.assert_trees_all_equal(result.metrics, one_at_a_time)
+    chex.assert_trees_all_equal(
+        result.policy_params,
+        jax.tree.map(lambda leaf: np.moveaxis(np.asarray(leaf), -1, 0), state.policy_params))
+
+
 @pytest.mark.parametrize("field, value, match", [
     ("iterations", 0, "iterations"),
     ("episodes", -1, "episodes"),
@@ -248,7 +270,7 @@ def test_a_failing_run_raises_instead_of_hanging():
     config = TrainConfig(iterations=3, episodes=2, max_steps=10)
     program = reinforce.compiled_program(config)
 
-    def failing(train_state, hyperparams):
+    def failing(train_state, hyperparams, count):
         raise RuntimeError("device lost")
 
     hyperparams = jax.tree.map(lambda v: np.full(300, v, np.float32), config.hyperparams)
