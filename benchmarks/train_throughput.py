@@ -18,7 +18,8 @@ Step counts:
 Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
 
 The process runs with the XLA setting of the `jaxpg` command (`jaxpg.flags`), unless XLA_FLAGS
-already passes backend options: `XLA_FLAGS=--xla_backend_extra_options=` measures XLA's defaults.
+already passes backend options; XLA's default threshold is measured with
+`XLA_FLAGS=--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024`.
 
     python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
     python benchmarks/train_throughput.py --quick            # a quick check that everything runs
