@@ -1,12 +1,12 @@
 """REINFORCE on CartPole: the book's training loop, compiled.
 
 One iteration plays `episodes` episodes of at most `max_steps` steps with the current policy,
-discounts and normalises the rewards, and takes one optimizer step on the REINFORCE loss. An
-iteration of many runs together (each run on the last axis of every array) is one compiled
+discounts and normalises the rewards, and takes one optimizer step on the REINFORCE loss.
+Iterations of many runs together (each run on the last axis of every array) are one compiled
 program, so that many seeds and hyperparameter settings train at once.
 
-The host calls that program for `ITERATIONS_PER_CALL` iterations at a time and shows progress as
-they complete: the program needs no callback into Python, and a program without callbacks can be
+The host calls that program for up to `ITERATIONS_PER_CALL` iterations at a time and shows
+progress as they complete: the program needs no callback into Python, and a program without callbacks can be
 kept in JAX's persistent compilation cache, so a second process does not compile again.
 """
 
@@ -232,8 +232,9 @@ def _step_signals(policy_params, network, transitions, weights):
         logits, inputs = policies.forward_layers(policy_params, obs, network.activation, offsets)
         return policies.log_prob(logits, action), inputs
 
-    offsets = [jnp.zeros((layer["bias"].shape[0], *weights.shape), weights.dtype)
-               for layer in policy_params["params"].values()]
+    layers = policy_params["params"]
+    offsets = [jnp.zeros((layers[f"Dense_{i}"]["bias"].shape[0], *weights.shape), weights.dtype)
+               for i in range(len(layers))]
     log_prob, vjp, inputs = jax.vjp(forward, offsets, has_aux=True)
     (cotangents,) = vjp(weights)
     signals = (weights * log_prob, inputs, cotangents)
@@ -294,12 +295,13 @@ def iterate(config, train_state, hyperparams):
     key, key_rollout = rng.split(train_state.key)
 
     # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
-    # plays without its run axis: XLA vectorises over the last axis, which that one would be.
+    # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
     alone = key_rollout.shape[0] == 1
     params = _without_runs(train_state.policy_params, 1) if alone else train_state.policy_params
     episodes = rollout.rollout(
         key_rollout[0] if alone else key_rollout, policies.network_policy(network, params),
         config.env_params, config.episodes, config.max_steps,
+        lanes=rollout.LANES if alone else 1,
     )
     if alone:
         episodes = rollout.Episodes(
@@ -335,15 +337,16 @@ def iterate(config, train_state, hyperparams):
 
 
 ITERATIONS_PER_CALL = 10  # iterations a call of the program runs at most
+MEAN_RETURN = Metrics._fields.index("mean_return")
 
 
 class Program(NamedTuple):
     """The compiled training of R runs at once, for one `TrainConfig`."""
 
     init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
-    # (TrainState [R], Hyperparams [R], count) -> (TrainState [R], Metrics' fields stacked
-    # [ITERATIONS_PER_CALL, len(Metrics._fields), R]): `count` (at most ITERATIONS_PER_CALL)
-    # iterations, whose metrics fill the first `count` rows; one array to fetch per call.
+    # (TrainState [R], Hyperparams [R], count: int32 scalar) -> (TrainState [R], Metrics' fields
+    # stacked [ITERATIONS_PER_CALL, len(Metrics._fields), R]): `count` iterations (at most
+    # ITERATIONS_PER_CALL), whose metrics fill the first `count` rows; one array per call.
     iterate: Callable
 
 
@@ -378,8 +381,9 @@ def _iterate_stacked(config, train_state, hyperparams, count):
         return train_state, history.at[i].set(jnp.stack(metrics))
 
     history = jnp.zeros((ITERATIONS_PER_CALL, len(Metrics._fields),
-                         *hyperparams.learning_rate.shape), jnp.float32)
-    return jax.lax.fori_loop(0, count, one, (train_state, history))
+                         *hyperparams.learning_rate.shape), jnp.result_type(float))
+    return jax.lax.fori_loop(0, jnp.minimum(count, ITERATIONS_PER_CALL), one,
+                             (train_state, history))
 
 
 def calls(iterations):
@@ -471,7 +475,8 @@ def run(program, iterations, parts, on_iteration=None):
                 progress_made.wait_for(lambda: finished[call] == num_workers or failed)
             if finished[call] < num_workers:
                 break  # a worker failed; its error is raised below
-            shown = np.concatenate([np.asarray(m)[:count, 0] for m in history[call]], axis=-1)
+            shown = np.concatenate([np.asarray(m)[:count, MEAN_RETURN] for m in history[call]],
+                                   axis=-1)
             for offset, mean_returns in enumerate(shown):
                 on_iteration(start + offset, mean_returns)
         for worker in workers:

@@ -4,9 +4,9 @@ A policy for `rollout` is a function `(obs [E, 4], u [E]) -> action [E]` acting 
 of observations at once; `u` is uniform in [0, 1), drawn in bulk by the rollout for every step.
 `rollout` also plays R independent runs at once (R keys, a policy with R sets of weights): every
 array then has a trailing run axis, which XLA vectorises over, and run r's episodes are exactly
-those it would play alone. Without run axes, XLA vectorises over the episodes, and `rollout` plays
-a multiple of `LANES` of them, the first ones again in the lanes left over: the policy then sees
-that many, and the copies are dropped from what `rollout` returns.
+those it would play alone. Without run axes XLA vectorises over the episodes, in whole vectors
+only: `rollout(..., lanes=LANES)` plays a multiple of `LANES` episodes, the first ones again in
+the lanes left over, and drops the copies from what it returns (its policy sees them all).
 """
 
 import functools
@@ -37,7 +37,7 @@ class Episodes(NamedTuple):
 
 
 CHUNK = 20  # steps simulated between checks whether every episode has ended
-LANES = 16  # floats in a vector of AVX-512 (two of AVX2): episodes without runs fill whole ones
+LANES = 16  # floats in a vector of AVX-512, two of AVX2
 
 
 def reset_batch(key, num, env_params):
@@ -49,6 +49,12 @@ def reset_batch(key, num, env_params):
     values = rng.uniform(key, (num, 4), env_params.reset_low, env_params.reset_high)
     state = cartpole.CartPoleState.from_array(jnp.moveaxis(values, 1, -1))
     return cartpole.observe(state), state
+
+
+def _repeated(x, num):
+    """`x` `[n, ...]` repeated along its first axis to `num` entries: x[0], ..., x[n - 1], x[0], ..."""
+    copies = [x] * (num // x.shape[0]) + [x[:num % x.shape[0]]]
+    return jnp.concatenate(copies)
 
 
 def _select(done, old, new):
@@ -74,7 +80,7 @@ def _transitions(records):
                       alive=records[:, 6] != 0)
 
 
-def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
+def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, lanes=1):
     """Plays `num_episodes` episodes of at most `max_steps` steps with `policy`.
 
     Time runs in chunks of `CHUNK` steps; once every episode has ended, the remaining chunks are
@@ -88,6 +94,8 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
       num_episodes: E.
       max_steps: T, the length of the trajectory.
       init_state: optional `CartPoleState` with `[E]` (or `[E, R]`) leaves, instead of random resets.
+      lanes: the episodes are played in a multiple of this many lanes, the first ones again in the
+        lanes left over; the policy sees every lane, the result only the E episodes.
 
     Returns:
       `Episodes` with transitions of shape `[T, E, ...]` (`[T, E, R, ...]` for R runs).
@@ -95,14 +103,13 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None):
     key_reset, key_policy = rng.split(key)
     if init_state is None:
         _, init_state = reset_batch(key_reset, num_episodes, env_params)
-    runs = key.shape[:-1]
     chunk = min(CHUNK, max_steps)
     num_chunks = -(-max_steps // chunk)
     noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes))
-    if not runs:  # whole vectors of episodes, the first ones again in the lanes left over
-        repeated = jnp.arange(-(-num_episodes // LANES) * LANES) % num_episodes
-        init_state = jax.tree.map(lambda leaf: leaf[repeated], init_state)
-        noise = noise[..., repeated]
+    played = -(-num_episodes // lanes) * lanes
+    if played > num_episodes:
+        init_state = jax.tree.map(lambda leaf: _repeated(leaf, played), init_state)
+        noise = jnp.moveaxis(_repeated(jnp.moveaxis(noise, 2, 0), played), 0, 2)
     steps = jnp.arange(num_chunks * chunk, dtype=jnp.int32).reshape(num_chunks, chunk)
 
     # The carry is one array, the features and whether the episode ended `[5, E, R]`, and so is a

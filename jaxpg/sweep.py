@@ -97,7 +97,7 @@ def sweep(config=reinforce.TrainConfig(), seeds=range(64), grid=None, show_progr
       show_progress: print a line per iteration (per chunk, when there are several).
       memory_budget: optional bytes of memory one device may use for a chunk of runs (see
         `fitting_chunk_size`); None trains all runs in one chunk. A budget below what one run
-        needs is a ValueError (raised after compiling one run's iteration, which measures it).
+        needs is a ValueError (raised after compiling one run's program, which measures it).
 
     Returns:
       `SweepResult` with `[G, S, ...]` leaves and the `Summary`, on every process.
@@ -196,7 +196,7 @@ def device_bytes(program, iterations, num_runs):
         lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=device),
         program.init.eval_shape(keys, hyperparams),
     )
-    count = jax.ShapeDtypeStruct((), jnp.int32, sharding=device)
+    count = jax.ShapeDtypeStruct((), jnp.int32)  # as `run` passes it: a numpy scalar
     _, metrics = program.iterate.eval_shape(state, hyperparams, count)
     stats = program.iterate.lower(state, hyperparams, count).compile().memory_analysis()
     call = (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes

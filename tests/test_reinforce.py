@@ -107,6 +107,16 @@ def test_accumulated_gradient_of_other_networks(hidden, activation):
     _assert_accumulated_equals_autodiff(policy_params, network, transitions, advantages)
 
 
+def test_accumulated_gradient_of_eleven_layers_in_sorted_order():
+    """Parameters that went through a tree map list Dense_10 before Dense_2; layers go by number."""
+    config = TrainConfig(episodes=4, max_steps=20, hidden=(3,) * 10, activation="tanh")
+    network, policy_params, transitions = _played(config, 5, 6)
+    policy_params = jax.tree.map(lambda leaf: leaf, policy_params)
+    assert list(policy_params["params"])[:3] == ["Dense_0", "Dense_1", "Dense_10"]
+    advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
+    _assert_accumulated_equals_autodiff(policy_params, network, transitions, advantages)
+
+
 def test_accumulated_gradient_of_steps_that_are_no_prefix():
     """Alive steps need not start an episode: the loop runs to the last alive step of any."""
     network, policy_params, transitions = _played(TrainConfig(episodes=3, max_steps=12), 3, 4)
@@ -169,16 +179,19 @@ def test_progress_reports_every_iteration(capsys):
     assert lines[-1].split(",")[1].startswith(f" mean rewards: {result.metrics.mean_return[0, -1]:.1f}")
 
 
-def test_calls_of_several_iterations_train_as_calls_of_one():
-    config = TrainConfig(iterations=reinforce.ITERATIONS_PER_CALL + 2, episodes=2, max_steps=10)
+@pytest.mark.parametrize("num_runs", [1, 2])
+@pytest.mark.parametrize("iterations", [3, reinforce.ITERATIONS_PER_CALL + 2])
+def test_calls_of_several_iterations_train_as_calls_of_one(num_runs, iterations):
+    config = TrainConfig(iterations=iterations, episodes=2, max_steps=10)
     program = reinforce.compiled_program(config)
-    keys = reinforce.run_keys([0, 1])
-    hyperparams = jax.tree.map(lambda v: np.full(2, v, np.float32), config.hyperparams)
+    keys = reinforce.run_keys(range(num_runs))
+    hyperparams = jax.tree.map(lambda v: np.full(num_runs, v, np.float32), config.hyperparams)
     reported = []
     (result,) = reinforce.run(program, config.iterations, [(keys, hyperparams)],
                               lambda iteration, _: reported.append(iteration))
     assert reported == list(range(config.iterations))
-    assert len(reinforce.calls(config.iterations)) == 2
+    assert [count for _, count in reinforce.calls(iterations)] == (
+        [3] if iterations == 3 else [reinforce.ITERATIONS_PER_CALL, 2])
 
     state, rows = program.init(keys, hyperparams), []
     for _ in range(config.iterations):

@@ -153,6 +153,28 @@ def test_stream_redraws_when_an_environment_resets_twice_in_a_chunk():
     assert float(stats.total_return) == num_envs * num_steps - resets
 
 
+@pytest.mark.parametrize("num_episodes", [1, 10, 16, 20])
+def test_episodes_played_in_whole_vectors_are_the_episodes(init_state, num_episodes):
+    """`lanes` pads the batch with copies of its first episodes, which the result leaves out."""
+    policy = lambda obs, u: (u > 0.5).astype(jnp.int32)  # noqa: E731
+    seen = []
+
+    def watched(obs, u):
+        seen.append(obs.shape[0])
+        return policy(obs, u)
+
+    key = jax.random.PRNGKey(3)
+    plain = rollout.rollout(key, policy, LIMITED, num_episodes, 30)
+    chex.assert_trees_all_equal(rollout.rollout(key, watched, LIMITED, num_episodes, 30,
+                                                lanes=rollout.LANES), plain)
+    assert seen and all(lanes % rollout.LANES == 0 and lanes - num_episodes < rollout.LANES
+                        for lanes in seen)
+    given = jax.tree.map(lambda leaf: leaf[:num_episodes], init_state)
+    chex.assert_trees_all_equal(
+        rollout.rollout(key, basic_policy, LIMITED, num_episodes, 30, given, lanes=rollout.LANES),
+        rollout.rollout(key, basic_policy, LIMITED, num_episodes, 30, given))
+
+
 def test_many_runs_at_once_play_as_each_run_alone():
     keys = jax.random.split(jax.random.PRNGKey(2), 3)
     policy = lambda obs, u: (u > 0.5).astype(jnp.int32)  # noqa: E731
