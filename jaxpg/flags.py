@@ -14,11 +14,11 @@ only. Any program can opt in by calling it before JAX computes anything.
 import os
 
 SMALL_LOOP_BYTES = 10**9
+SETTING = f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"
 
 
 def compile_loops_whole():
-    """Adds the setting to `XLA_FLAGS`, unless `XLA_FLAGS` already passes backend options."""
+    """Adds `SETTING` to `XLA_FLAGS`, unless `XLA_FLAGS` already passes backend options."""
     flags = os.environ.get("XLA_FLAGS", "")
     if "--xla_backend_extra_options" not in flags:
-        os.environ["XLA_FLAGS"] = (f"{flags} --xla_backend_extra_options="
-                                   f"xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}").strip()
+        os.environ["XLA_FLAGS"] = f"{flags} {SETTING}".strip()
