@@ -6,8 +6,9 @@ Iterations of many runs together (each run on the last axis of every array) are 
 program, so that many seeds and hyperparameter settings train at once.
 
 The host calls that program for up to `ITERATIONS_PER_CALL` iterations at a time and shows
-progress as they complete: the program needs no callback into Python, and a program without callbacks can be
-kept in JAX's persistent compilation cache, so a second process does not compile again.
+progress as they complete: the program needs no callback into Python, and a program without
+callbacks can be kept in JAX's persistent compilation cache, so a second process does not compile
+again.
 """
 
 import concurrent.futures
