@@ -35,7 +35,7 @@ import numpy as np
 from jaxpg import flags, reinforce, rollout
 from jaxpg.sweep import check_seeds, expand_grid, run_inputs
 
-flags.compile_loops_whole()  # before JAX starts its backends
+flags.configure_xla()  # before JAX starts its backends
 
 
 def step_counts(config, num_runs, mean_lengths):

@@ -364,7 +364,7 @@ def run(argv=None):
     """The installed `jaxpg` command: `main` in a process with jaxpg's XLA setting (`flags`)."""
     from jaxpg import flags
 
-    flags.compile_loops_whole()
+    flags.configure_xla()
     sys.exit(main(argv))
 
 

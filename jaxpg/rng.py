@@ -42,35 +42,53 @@ def _key_words(key):
     return jnp.moveaxis(key, -1, 0)
 
 
-def _counters(shape, runs):
+def _repeats(shape, repeat):
+    """The indices along `repeat`'s axis that repeat a draw of `shape` there (see `uniform`)."""
+    axis, size = repeat
+    return np.arange(size) % shape[axis]
+
+
+def _counters(shape, runs, repeat=None):
     """(hi, lo) halves of a uint64 iota reshaped to `shape`, as `jax.random` counts draws."""
     if math.prod(shape) >= 2**32:
         raise ValueError(f"shape: at most 2**32 - 1 numbers per draw, got {shape}")
-    lo = jax.lax.iota(jnp.uint32, math.prod(shape)).reshape(*shape, *(1 for _ in runs))
+    if repeat is None or repeat[1] == shape[repeat[0]]:
+        lo = jax.lax.iota(jnp.uint32, math.prod(shape)).reshape(shape)
+    else:  # a constant: the hash then runs once over the repeated draws
+        lo = np.arange(math.prod(shape), dtype=np.uint32).reshape(shape)
+        lo = jnp.asarray(np.take(lo, _repeats(shape, repeat), axis=repeat[0]))
+    lo = lo.reshape(*lo.shape, *(1 for _ in runs))
     return jnp.zeros_like(lo), lo
 
 
-@functools.partial(jax.jit, static_argnames="shape")
-def bits(key, shape):
-    """Random uint32 of `shape`, equal to `jax.random.bits(key, shape)`; `[*shape, R]` for R keys."""
+@functools.partial(jax.jit, static_argnames=("shape", "repeat"))
+def bits(key, shape, repeat=None):
+    """Random uint32 of `shape`, equal to `jax.random.bits(key, shape)`; `[*shape, R]` for R keys.
+
+    `repeat` as for `uniform`.
+    """
     words = _key_words(key)
-    x0, x1 = _threefry2x32(words, *_counters(tuple(shape), words.shape[1:]))
+    x0, x1 = _threefry2x32(words, *_counters(tuple(shape), words.shape[1:], repeat))
     return x0 ^ x1
 
 
-@functools.partial(jax.jit, static_argnames=("shape", "dtype"))
-def uniform(key, shape, minval=0.0, maxval=1.0, dtype=None):
+@functools.partial(jax.jit, static_argnames=("shape", "dtype", "repeat"))
+def uniform(key, shape, minval=0.0, maxval=1.0, dtype=None, repeat=None):
     """Uniform floats in [minval, maxval), equal to `jax.random.uniform`; fast in float32.
 
-    With R keys `[R, 2]`, `[*shape, R]`; `minval` and `maxval` broadcast against that.
+    With R keys `[R, 2]`, `[*shape, R]`; `minval` and `maxval` broadcast against that. With
+    `repeat=(axis, size)`, the draw's `axis` is repeated to `size` entries, entry j being entry
+    j % shape[axis], and drawn so: the copies cost no more than the numbers they copy.
     """
     dtype = jax.dtypes.canonicalize_dtype(dtype or float)
     if dtype != jnp.float32:
         if key.ndim > 1:
             draws = jax.vmap(lambda k: jax.random.uniform(k, shape, dtype, minval, maxval))(key)
-            return jnp.moveaxis(draws, 0, -1)
-        return jax.random.uniform(key, shape, dtype, minval, maxval)
-    mantissa = bits(key, shape) >> np.uint32(32 - 23)
+            draws = jnp.moveaxis(draws, 0, -1)
+        else:
+            draws = jax.random.uniform(key, shape, dtype, minval, maxval)
+        return draws if repeat is None else jnp.take(draws, _repeats(shape, repeat), repeat[0])
+    mantissa = bits(key, shape, repeat) >> np.uint32(32 - 23)
     floats = jax.lax.bitcast_convert_type(mantissa | np.uint32(0x3F800000), jnp.float32) - 1.0
     minval = jnp.asarray(minval, jnp.float32)
     maxval = jnp.asarray(maxval, jnp.float32)

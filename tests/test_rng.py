@@ -33,3 +33,13 @@ def test_many_keys_at_once_put_each_keys_draws_on_the_last_axis():
     for r, key in enumerate(keys):
         np.testing.assert_array_equal(uniforms[..., r], jax.random.uniform(key, (7, 3)))
         np.testing.assert_array_equal(split[:, r], jax.random.split(key, 4))
+
+
+@pytest.mark.parametrize("axis, size", [(0, 7), (1, 16), (1, 3)])
+def test_repeated_draws_are_the_draws_repeated_along_the_axis(axis, size):
+    key, keys, shape = jax.random.PRNGKey(4), jax.random.split(jax.random.PRNGKey(9), 3), (3, 5)
+    index = np.arange(size) % shape[axis]
+    np.testing.assert_array_equal(rng.uniform(key, shape, -1.0, 2.0, repeat=(axis, size)),
+                                  np.take(np.asarray(rng.uniform(key, shape, -1.0, 2.0)), index, axis))
+    np.testing.assert_array_equal(rng.uniform(keys, shape, repeat=(axis, size)),
+                                  np.take(np.asarray(rng.uniform(keys, shape)), index, axis))
