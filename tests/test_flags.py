@@ -6,13 +6,15 @@ import sys
 
 import numpy as np
 
+from jaxpg import flags
+
 # Trains one seed (a run alone) and three (runs side by side) and saves the results, with or
-# without the setting, and how many of the iteration program's loops XLA compiled whole.
+# without the setting.
 SCRIPT = """
 import sys
 import numpy as np
 from jaxpg import flags
-if sys.argv[2] == "whole":
+if sys.argv[2] == "set":
     flags.configure_xla()
 from jaxpg import reinforce
 from jaxpg.sweep import check_seeds, expand_grid, run_inputs
@@ -27,17 +29,40 @@ for num_runs in (1, 3):
         saved[f"{num_runs}-{name}"] = leaf
     for i, leaf in enumerate(reinforce.jax.tree.leaves(result.policy_params)):
         saved[f"{num_runs}-param{i}"] = leaf
-    state = program.init(keys, hyperparams)
-    compiled = program.iterate.lower(state, hyperparams, np.int32(1)).compile().as_text()
-    saved[f"{num_runs}-whole-loops"] = compiled.count("xla_cpu_small_call")
 np.savez(sys.argv[1], **saved)
 """
+
+# Under the setting, the book's seeds 0 to 3 train alone as they do side by side, in one block
+# (one core). XLA's whole-loop compiling (`xla_cpu_small_while_loop_byte_threshold`) once broke
+# this for seeds 1 and 3: the program of a run alone rounded differently from that of several.
+ALONE = """
+import chex, jax
+from jaxpg import flags
+flags.configure_xla()
+from jaxpg import reinforce
+from jaxpg.sweep import check_seeds, expand_grid, run_inputs
+
+reinforce.usable_cores = lambda: 1
+config = reinforce.TrainConfig()
+program = reinforce.compiled_program(config)
+inputs = run_inputs(check_seeds(range(4)), expand_grid(config, None))
+(together,) = reinforce.run(program, config.iterations, [inputs])
+for i in range(4):
+    (alone,) = reinforce.run(program, config.iterations, [jax.tree.map(lambda x: x[i:i + 1], inputs)])
+    chex.assert_trees_all_equal(jax.tree.map(lambda x: x[0], alone),
+                                jax.tree.map(lambda x: x[i], together))
+"""
+
+
+def _run(*args):
+    env = {**os.environ, "XLA_FLAGS": ""}
+    return subprocess.run([sys.executable, "-c", *args], env=env, capture_output=True, text=True)
 
 
 def _train(tmp_path, setting):
     out = tmp_path / f"{setting}.npz"
-    env = {**os.environ, "XLA_FLAGS": ""}
-    subprocess.run([sys.executable, "-c", SCRIPT, str(out), setting], env=env, check=True)
+    result = _run(SCRIPT, str(out), setting)
+    assert result.returncode == 0, result.stderr
     return dict(np.load(out))
 
 
@@ -45,12 +70,25 @@ def test_the_setting_trains_bit_for_bit_alike(tmp_path):
     """Parameters and statistics are the same bit for bit; the gradient norm, which nothing is
     computed from, to one unit in the last place: with loops not unrolled, LLVM fuses one of its
     multiplications and additions into one rounding in one layout and not in the other."""
-    whole, default = _train(tmp_path, "whole"), _train(tmp_path, "default")
+    tuned, default = _train(tmp_path, "set"), _train(tmp_path, "default")
     for num_runs in (1, 3):
-        loops = f"{num_runs}-whole-loops"
-        assert whole.pop(loops) > default.pop(loops)  # the setting took effect
-        np.testing.assert_array_max_ulp(whole.pop(f"{num_runs}-grad_norm"),
+        np.testing.assert_array_max_ulp(tuned.pop(f"{num_runs}-grad_norm"),
                                         default.pop(f"{num_runs}-grad_norm"), maxulp=1)
-    assert whole.keys() == default.keys()
-    for name in whole:
-        np.testing.assert_array_equal(whole[name], default[name], err_msg=name)
+    assert tuned.keys() == default.keys()
+    for name in tuned:
+        np.testing.assert_array_equal(tuned[name], default[name], err_msg=name)
+
+
+def test_under_the_setting_seeds_train_alone_as_side_by_side():
+    result = _run(ALONE)
+    assert result.returncode == 0, result.stderr
+
+
+def test_the_setting_is_added_to_xla_flags_unless_backend_options_are_given(monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+    flags.configure_xla()
+    assert os.environ["XLA_FLAGS"] == f"--xla_force_host_platform_device_count=2 {flags.SETTING}"
+    given = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
+    monkeypatch.setenv("XLA_FLAGS", given)
+    flags.configure_xla()
+    assert os.environ["XLA_FLAGS"] == given

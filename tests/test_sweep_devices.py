@@ -58,9 +58,14 @@ def test_two_processes_train_as_one_and_process_0_writes(small_sweep, tmp_path):
     common = ["sweep", "--iterations", "3", "--episodes", "3", "--max-steps", "20", "--seeds", "5",
               "--lr", "0.01,0.02", "--no-cache", "--coordinator", f"localhost:{_free_port()}",
               "--num-processes", "2"]
+    # XLA's default setting, as in this process: the command's own rounds the gradient norm
+    # differently in its last bit (tests/test_flags.py).
+    default = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
+    env = {**os.environ, "XLA_FLAGS": default}
     processes = [
         subprocess.Popen([sys.executable, "-m", "jaxpg.cli", *common, "--process-id", str(i),
-                          "--out", str(tmp_path / f"out{i}")], stderr=subprocess.PIPE, text=True)
+                          "--out", str(tmp_path / f"out{i}")], env=env, stderr=subprocess.PIPE,
+                         text=True)
         for i in range(2)
     ]
     errors = [p.communicate(timeout=300)[1] for p in processes]
