@@ -2,9 +2,10 @@
 
 jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) at once with
 `reinforce.run`, whose compiled program runs ten iterations a call; compiling its two programs
-(`.lower(...).compile()` of `init` and `iterate`) is timed apart from the runs, which follow one
-untimed warm-up run. The numpy book implementation (`book_numpy.py`: one seed, one step at a
-time on Gymnasium's CartPole-v1) runs in the same process for scale.
+(`.lower(...).compile()` of `init` and `iterate`, for each size of block of runs that `run` trains:
+`reinforce.part_blocks`) is timed apart from the runs, which follow one untimed warm-up run. The
+numpy book implementation (`book_numpy.py`: one seed, one step at a time on Gymnasium's
+CartPole-v1) runs in the same process for scale.
 
 Step counts:
 - simulated steps: steps inside an episode before it ended (sum over runs and iterations of
@@ -18,7 +19,8 @@ Step counts:
 Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
 
 The process runs with the XLA setting of the `jaxpg` command (`jaxpg.flags`), unless XLA_FLAGS
-already passes backend options; XLA's default threshold is measured with
+already passes backend options; XLA's own defaults are measured with backend options that leave
+them as they are, such as
 `XLA_FLAGS=--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024`.
 
     python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
@@ -30,6 +32,7 @@ import dataclasses
 
 import book_numpy
 import common
+import jax
 import numpy as np
 
 from jaxpg import flags, reinforce, rollout
@@ -62,11 +65,13 @@ def measure_jaxpg(config, num_runs, repeats):
     # Seeds 0..R-1 under the config's own settings, passed as a sweep passes them.
     keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
     program = reinforce.compiled_program(config)
-    _, init_times = common.compile_jitted(program.init, keys, hyperparams)
-    _, compile_times = common.compile_jitted(
-        program.iterate, program.init(keys, hyperparams), hyperparams, np.int32(1)
-    )
     parts = [(keys, hyperparams)]
+    jax.clear_caches()  # compiled afresh, even where an earlier row had the same size of block
+    times = []  # the programs `reinforce.run` compiles: init and iterate for each size of block
+    for block in {len(block[0]): block for block in reinforce.part_blocks(parts[0])}.values():
+        times.append(common.compile_jitted(program.init, *block)[1])
+        times.append(common.compile_jitted(
+            program.iterate, program.init(*block), block[1], np.int32(1))[1])
     reinforce.run(program, config.iterations, parts)  # warm-up: fills jit's own cache
     timing, (result,) = common.time_calls(
         reinforce.run, program, config.iterations, parts, repeats=repeats
@@ -78,8 +83,8 @@ def measure_jaxpg(config, num_runs, repeats):
     return _row("jaxpg", num_runs, config.iterations, timing["median_s"], simulated, padded,
                 np.mean(np.asarray(metrics.mean_return)[:, -1]),
                 times_s=timing["times_s"], skipped_fraction=skipped,
-                lower_s=init_times["lower_s"] + compile_times["lower_s"],
-                compile_s=init_times["compile_s"] + compile_times["compile_s"])
+                lower_s=sum(t["lower_s"] for t in times),
+                compile_s=sum(t["compile_s"] for t in times))
 
 
 def measure_book(config, iterations, env_id):
