@@ -12,9 +12,11 @@ only. Any program can opt in by calling `configure_xla` before JAX computes anyt
 
 Not in the setting: raising `xla_cpu_small_while_loop_byte_threshold`, which compiles the whole
 ten-iteration loop into one function (1 seed 0.041 s instead of 0.057 s). A run alone then rounds
-differently from the same run beside others (61 of the book's seeds 0 to 63 ended with other
-parameters alone; `tests/test_flags.py`): in one function, LLVM fuses multiplications and
-additions differently when the run axis has one entry than when it has two or more.
+differently from the same run beside others (17 of the book's seeds 0 to 63 ended with other
+parameters alone, 30 differed in some statistic; `tests/test_flags.py`). Such a loop is emitted by
+XLA's older IR emitter, which rounds a program with a run axis of one entry differently from one
+with two or more, run kernel by kernel too (`xla_cpu_use_fusion_emitters=False`): by how LLVM fuses
+multiplications and additions into FMAs, as far as it was traced.
 """
 
 import os
