@@ -19,9 +19,8 @@ Step counts:
 Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
 
 The process runs with the XLA setting of the `jaxpg` command (`jaxpg.flags`), unless XLA_FLAGS
-already passes backend options; XLA's own defaults are measured with backend options that leave
-them as they are, such as
-`XLA_FLAGS=--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024`.
+already passes backend options; XLA's own defaults are measured with `XLA_FLAGS` set to
+`jaxpg.flags.XLA_DEFAULTS`.
 
     python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
     python benchmarks/train_throughput.py --quick            # a quick check that everything runs

@@ -43,20 +43,31 @@ def _key_words(key):
 
 
 def _repeats(shape, repeat):
-    """The indices along `repeat`'s axis that repeat a draw of `shape` there (see `uniform`)."""
+    """(axis, indices along it) that repeat a draw of `shape` as `repeat=(axis, size)` asks, or
+    None when nothing is repeated; a ValueError for an axis outside `shape` or a size below its
+    length."""
+    if repeat is None:
+        return None
     axis, size = repeat
-    return np.arange(size) % shape[axis]
+    if not -len(shape) <= axis < len(shape) or size < shape[axis]:
+        raise ValueError(f"repeat: expected (axis, size) with an axis of shape {shape} and a size "
+                         f"of at least that axis's length, got {repeat}")
+    axis %= len(shape)
+    return None if size == shape[axis] else (axis, np.arange(size) % shape[axis])
 
 
 def _counters(shape, runs, repeat=None):
-    """(hi, lo) halves of a uint64 iota reshaped to `shape`, as `jax.random` counts draws."""
+    """(hi, lo) halves of the uint64 counters of a draw of `shape`, as `jax.random` counts them:
+    an iota reshaped to `shape`; with `repeat`, a constant of those counters repeated, so that the
+    hash runs once over the repeated draws."""
     if math.prod(shape) >= 2**32:
         raise ValueError(f"shape: at most 2**32 - 1 numbers per draw, got {shape}")
-    if repeat is None or repeat[1] == shape[repeat[0]]:
+    repeats = _repeats(shape, repeat)
+    if repeats is None:
         lo = jax.lax.iota(jnp.uint32, math.prod(shape)).reshape(shape)
-    else:  # a constant: the hash then runs once over the repeated draws
+    else:
         lo = np.arange(math.prod(shape), dtype=np.uint32).reshape(shape)
-        lo = jnp.asarray(np.take(lo, _repeats(shape, repeat), axis=repeat[0]))
+        lo = jnp.asarray(np.take(lo, repeats[1], axis=repeats[0]))
     lo = lo.reshape(*lo.shape, *(1 for _ in runs))
     return jnp.zeros_like(lo), lo
 
@@ -77,8 +88,9 @@ def uniform(key, shape, minval=0.0, maxval=1.0, dtype=None, repeat=None):
     """Uniform floats in [minval, maxval), equal to `jax.random.uniform`; fast in float32.
 
     With R keys `[R, 2]`, `[*shape, R]`; `minval` and `maxval` broadcast against that. With
-    `repeat=(axis, size)`, the draw's `axis` is repeated to `size` entries, entry j being entry
-    j % shape[axis], and drawn so: the copies cost no more than the numbers they copy.
+    `repeat=(axis, size)` (a size of at least the axis's length), the draw's `axis` is repeated
+    to `size` entries, entry j being entry j % shape[axis], and drawn so: the copies cost no more
+    than the numbers they copy.
     """
     dtype = jax.dtypes.canonicalize_dtype(dtype or float)
     if dtype != jnp.float32:
@@ -87,7 +99,8 @@ def uniform(key, shape, minval=0.0, maxval=1.0, dtype=None, repeat=None):
             draws = jnp.moveaxis(draws, 0, -1)
         else:
             draws = jax.random.uniform(key, shape, dtype, minval, maxval)
-        return draws if repeat is None else jnp.take(draws, _repeats(shape, repeat), repeat[0])
+        repeats = _repeats(shape, repeat)
+        return draws if repeats is None else jnp.take(draws, repeats[1], axis=repeats[0])
     mantissa = bits(key, shape, repeat) >> np.uint32(32 - 23)
     floats = jax.lax.bitcast_convert_type(mantissa | np.uint32(0x3F800000), jnp.float32) - 1.0
     minval = jnp.asarray(minval, jnp.float32)

@@ -35,11 +35,20 @@ def test_many_keys_at_once_put_each_keys_draws_on_the_last_axis():
         np.testing.assert_array_equal(split[:, r], jax.random.split(key, 4))
 
 
-@pytest.mark.parametrize("axis, size", [(0, 7), (1, 16), (1, 3)])
-def test_repeated_draws_are_the_draws_repeated_along_the_axis(axis, size):
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("axis, size", [(0, 7), (1, 16), (-1, 12), (1, 5)])
+def test_repeated_draws_are_the_draws_repeated_along_the_axis(dtype, axis, size):
     key, keys, shape = jax.random.PRNGKey(4), jax.random.split(jax.random.PRNGKey(9), 3), (3, 5)
     index = np.arange(size) % shape[axis]
-    np.testing.assert_array_equal(rng.uniform(key, shape, -1.0, 2.0, repeat=(axis, size)),
-                                  np.take(np.asarray(rng.uniform(key, shape, -1.0, 2.0)), index, axis))
-    np.testing.assert_array_equal(rng.uniform(keys, shape, repeat=(axis, size)),
-                                  np.take(np.asarray(rng.uniform(keys, shape)), index, axis))
+    with jax.enable_x64(dtype == np.float64):
+        for k in (key, keys):  # one key, and three keys at once (a run axis last)
+            repeated = rng.uniform(k, shape, -1.0, 2.0, dtype, repeat=(axis, size))
+            drawn = np.asarray(rng.uniform(k, shape, -1.0, 2.0, dtype))
+            assert repeated.dtype == dtype
+            np.testing.assert_array_equal(repeated, np.take(drawn, index, axis % len(shape)))
+
+
+@pytest.mark.parametrize("repeat", [(2, 9), (-3, 9), (1, 4)])
+def test_a_repeat_outside_the_shape_or_shorter_than_its_axis_is_refused(repeat):
+    with pytest.raises(ValueError, match="repeat: expected"):
+        rng.uniform(jax.random.PRNGKey(0), (3, 5), repeat=repeat)

@@ -15,6 +15,8 @@ import jax
 import numpy as np
 from conftest import SMALL_CONFIG, SMALL_GRID, SMALL_SEEDS
 
+from jaxpg import flags
+
 TWO_DEVICES = """
 import sys
 import jax
@@ -60,8 +62,7 @@ def test_two_processes_train_as_one_and_process_0_writes(small_sweep, tmp_path):
               "--num-processes", "2"]
     # XLA's default setting, as in this process: the command's own rounds the gradient norm
     # differently in its last bit (tests/test_flags.py).
-    default = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
-    env = {**os.environ, "XLA_FLAGS": default}
+    env = {**os.environ, "XLA_FLAGS": flags.XLA_DEFAULTS}
     processes = [
         subprocess.Popen([sys.executable, "-m", "jaxpg.cli", *common, "--process-id", str(i),
                           "--out", str(tmp_path / f"out{i}")], env=env, stderr=subprocess.PIPE,
