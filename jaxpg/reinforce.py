@@ -362,7 +362,7 @@ def compiled_program(config):
 
 
 # Initialising runs once: it is compiled for speed of compilation, not of running, without
-# XLA's CPU fusion emitters (0.15 s sooner).
+# XLA's CPU fusion emitters (about 0.1 s sooner).
 INIT_OPTIONS = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 # A CPU with AVX-512 runs the iteration in 512-bit vectors: 1 and 64 seeds train 3 to 6 % faster.
 ITERATE_OPTIONS = {"xla_cpu_prefer_vector_width": 512}

@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxpg import cartpole, rng
 
@@ -53,12 +54,6 @@ def reset_batch(key, num, env_params, repeat_to=None):
     values = rng.uniform(key, (num, 4), env_params.reset_low, env_params.reset_high, repeat=repeat)
     state = cartpole.CartPoleState.from_array(jnp.moveaxis(values, 1, -1))
     return cartpole.observe(state), state
-
-
-def _repeated(x, num):
-    """`x` `[n, ...]` repeated along its first axis to `num` entries: x[0], ..., x[n - 1], x[0], ..."""
-    copies = [x] * (num // x.shape[0]) + [x[:num % x.shape[0]]]
-    return jnp.concatenate(copies)
 
 
 def _select(done, old, new):
@@ -109,7 +104,7 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
     if init_state is None:
         _, init_state = reset_batch(key_reset, num_episodes, env_params, played)
     elif played > num_episodes:
-        init_state = jax.tree.map(lambda leaf: _repeated(leaf, played), init_state)
+        init_state = jax.tree.map(lambda leaf: leaf[np.arange(played) % num_episodes], init_state)
     chunk = min(CHUNK, max_steps)
     num_chunks = -(-max_steps // chunk)
     noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes), repeat=(2, played))
