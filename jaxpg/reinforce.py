@@ -173,13 +173,18 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     in time order, and the E episodes are summed at the end in a fixed order: a run rounds the
     same alone as in a sweep. A loop step is a few multiply-adds on small accumulators
     `[K, N, E, R]`, few enough kernels for XLA to run them one after another rather than schedule
-    them as a graph.
+    them as a graph. A run alone, whose episodes the loop vectorises over, adds them up in whole
+    vectors: episodes of no alive step fill its last one (1 seed trained in 0.045 and 0.051 s
+    instead of 0.081 and 0.084 s, in alternating benchmark runs). They change no sum: their totals
+    stay +0, and the sum over episodes pads with zeros anyway.
     The step signals take `[K, T, E, R]` floats per layer, which a sweep's memory budget counts.
 
     Returns:
       (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
     """
     runs = advantages.ndim - 2
+    if math.prod(advantages.shape[2:]) == 1:
+        transitions, advantages = _padded_episodes(transitions, advantages, rollout.LANES)
     weights = jnp.where(transitions.alive, advantages, 0.0)
     count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
     layers = policy_params["params"]
@@ -212,6 +217,17 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     grads = {"params": {name: {"kernel": kernel, "bias": bias}
                         for name, (kernel, bias) in zip(names, layer_totals)}}
     return loss, grads
+
+
+def _padded_episodes(transitions, advantages, multiple):
+    """Episodes `[T, E, ...]` and their advantages, padded with episodes of no alive step (all
+    zeros) to a multiple of `multiple` episodes."""
+    extra = -advantages.shape[1] % multiple
+
+    def pad(leaf):
+        return jnp.pad(leaf, [(0, 0), (0, extra)] + [(0, 0)] * (leaf.ndim - 2))
+
+    return jax.tree.map(pad, transitions), pad(advantages)
 
 
 def _step_signals(policy_params, network, transitions, weights):
