@@ -1,12 +1,15 @@
 """jaxpg's XLA setting for its own processes changes how fast they train, not what they train."""
 
 import os
+import pathlib
 import subprocess
 import sys
 
 import numpy as np
 
 from jaxpg import flags
+
+CHECK_ALONE = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "check_alone.py"
 
 # Trains one seed (a run alone) and three (runs side by side) and saves the results, with or
 # without the setting.
@@ -31,30 +34,6 @@ for num_runs in (1, 3):
         saved[f"{num_runs}-param{i}"] = leaf
 np.savez(sys.argv[1], **saved)
 """
-
-# Under the setting, the book's seeds 0 to 15 train alone as they do side by side, in one block
-# (one core). XLA's whole-loop compiling (`xla_cpu_small_while_loop_byte_threshold`) once broke
-# this for seeds 1 and 3: the program of a run alone rounded differently from that of several.
-# Runs alone cost little once their program is compiled, and a change that breaks this for a few
-# seeds in 64 (17 did then) is likelier seen in 16.
-ALONE = """
-import chex, jax
-from jaxpg import flags
-flags.configure_xla()
-from jaxpg import reinforce
-from jaxpg.sweep import check_seeds, expand_grid, run_inputs
-
-reinforce.usable_cores = lambda: 1
-config = reinforce.TrainConfig()
-program = reinforce.compiled_program(config)
-inputs = run_inputs(check_seeds(range(16)), expand_grid(config, None))
-(together,) = reinforce.run(program, config.iterations, [inputs])
-for i in range(16):
-    (alone,) = reinforce.run(program, config.iterations, [jax.tree.map(lambda x: x[i:i + 1], inputs)])
-    chex.assert_trees_all_equal(jax.tree.map(lambda x: x[0], alone),
-                                jax.tree.map(lambda x: x[i], together))
-"""
-
 
 # Compiles a small program with XLA's dumps on, with or without the setting; XLA ignores a
 # backend option it does not know, so only its code shows whether the setting arrived.
@@ -95,8 +74,15 @@ def test_the_setting_trains_bit_for_bit_alike(tmp_path):
 
 
 def test_under_the_setting_seeds_train_alone_as_side_by_side():
-    result = _run(ALONE)
-    assert result.returncode == 0, result.stderr
+    """The book's seeds 0 to 15 train alone as in one block, by `benchmarks/check_alone.py`.
+
+    XLA's whole-loop compiling (`xla_cpu_small_while_loop_byte_threshold`) once broke this for
+    17 of seeds 0 to 63 (1 and 3 among them): the program of a run alone rounded differently from
+    that of several. Runs alone cost little once their program is compiled (8 s in all).
+    """
+    result = subprocess.run([sys.executable, str(CHECK_ALONE), "--seeds", "16"],
+                            env={**os.environ, "XLA_FLAGS": ""}, capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
 
 
 def _optimized_ir_lines(tmp_path, setting):
