@@ -1,11 +1,11 @@
 """Do seeds train alone exactly as side by side? The check to run after any change for speed.
 
-Trains seeds 0..R-1 of the book's settings in one block of R runs (one core), then each seed
-alone, under the `jaxpg` command's XLA setting, and counts the seeds whose parameters or
-statistics differ in any bit. Programs of one run and of several are compiled apart, and XLA can
+Trains seeds 0..R-1 of the book's settings side by side on one core (in blocks of at most
+`reinforce.CPU_BLOCK` runs), then each seed alone, under the `jaxpg` command's XLA setting, and
+counts the seeds whose parameters or statistics differ in any bit (-0 and +0 differ too). Programs of one run and of several are compiled apart, and XLA can
 round them differently (see `jaxpg.flags`): the suite checks 16 seeds, this script as many as asked.
 
-    python benchmarks/check_alone.py                 # seeds 0 to 63; about a minute
+    python benchmarks/check_alone.py                 # seeds 0 to 63; about 15 s
     python benchmarks/check_alone.py --seeds 4 --iterations 10
 
 Exits with status 1 when some seed differs.
@@ -23,9 +23,14 @@ from jaxpg.sweep import check_seeds, expand_grid, run_inputs
 flags.configure_xla()  # before JAX starts its backends
 
 
+def _same_bits(a, b):
+    return all(np.asarray(x).tobytes() == np.asarray(y).tobytes()
+               for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+
+
 def differing_seeds(num_seeds, iterations):
     """(seeds with other parameters alone, seeds with any difference) of seeds 0..num_seeds-1."""
-    reinforce.usable_cores = lambda: 1  # one block of all the seeds
+    reinforce.usable_cores = lambda: 1  # blocks as large as they come
     config = reinforce.TrainConfig(iterations=iterations)
     program = reinforce.compiled_program(config)
     inputs = run_inputs(check_seeds(range(num_seeds)), expand_grid(config, None))
@@ -36,9 +41,8 @@ def differing_seeds(num_seeds, iterations):
                                  [jax.tree.map(lambda x: x[seed:seed + 1], inputs)])
         mine = jax.tree.map(lambda x: x[seed], together)
         alone = jax.tree.map(lambda x: x[0], alone)
-        params = not all(np.array_equal(a, b) for a, b in
-                         zip(jax.tree.leaves(alone.policy_params), jax.tree.leaves(mine.policy_params)))
-        metrics = not all(np.array_equal(a, b) for a, b in zip(alone.metrics, mine.metrics))
+        params = not _same_bits(alone.policy_params, mine.policy_params)
+        metrics = not _same_bits(alone.metrics, mine.metrics)
         if params:
             other_params.append(seed)
         if params or metrics:
