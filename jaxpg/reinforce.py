@@ -185,7 +185,7 @@ def loss_and_grad(policy_params, network, transitions, advantages):
       (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
     """
     runs = advantages.ndim - 2
-    if math.prod(advantages.shape[2:]) == 1:
+    if _alone(advantages.shape):
         transitions, advantages = _padded_episodes(transitions, advantages, rollout.LANES)
     weights = jnp.where(transitions.alive, advantages, 0.0)
     count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
@@ -221,6 +221,11 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     return loss, grads
 
 
+def _alone(shape):
+    """Whether `[T, E, *runs]` is a run alone: no run axes, or run axes of one entry."""
+    return math.prod(shape[2:]) == 1
+
+
 def _padded_episodes(transitions, advantages, multiple):
     """Episodes `[T, E, ...]` and their advantages, padded with episodes of no alive step (all
     zeros) to a multiple of `multiple` episodes."""
@@ -242,7 +247,7 @@ def _step_signals(policy_params, network, transitions, weights):
     """
     shape = weights.shape
     obs, action = transitions.obs, transitions.action
-    alone = math.prod(shape[2:]) == 1
+    alone = _alone(shape)
     if alone:
         policy_params = _without_runs(policy_params, len(shape) - 2)
         obs, action, weights = obs.reshape(-1, obs.shape[-1]), action.reshape(-1), weights.reshape(-1)
