@@ -2,8 +2,9 @@
 
 Trains seeds 0..R-1 of the book's settings side by side on one core (in blocks of at most
 `reinforce.CPU_BLOCK` runs), then each seed alone, under the `jaxpg` command's XLA setting, and
-counts the seeds whose parameters or statistics differ in any bit (-0 and +0 differ too). Programs of one run and of several are compiled apart, and XLA can
-round them differently (see `jaxpg.flags`): the suite checks 16 seeds, this script as many as asked.
+counts the seeds whose parameters or statistics differ in any bit (-0 and +0 differ too).
+Programs of one run and of several are compiled apart, and XLA can round them differently (see
+`jaxpg.flags`): the suite checks 16 seeds, this script as many as asked.
 
     python benchmarks/check_alone.py                 # seeds 0 to 63; about 15 s
     python benchmarks/check_alone.py --seeds 4 --iterations 10
