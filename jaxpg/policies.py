@@ -4,11 +4,13 @@ A policy, as `rollout` uses it, maps a batch of observations `[E, 4]` and unifor
 [0, 1) to actions `[E]`: 0 pushes left, 1 pushes right.
 """
 
+import math
 from collections.abc import Sequence
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxpg import sums
 
@@ -149,6 +151,33 @@ dense.defvjp(_dense_fwd, _dense_bwd)
 def init_network(key, network):
     """Initial `policy_params` of a `PolicyNetwork`."""
     return network.init(key, jnp.zeros((4,)))
+
+
+def parameter_shapes(network):
+    """The shape of each parameter of `init_network(key, network)`, under the same keys."""
+    sizes = (4, *network.hidden, 1)
+    return {"params": {f"Dense_{i}": {"bias": (n,), "kernel": (k, n)}
+                       for i, (k, n) in enumerate(zip(sizes[:-1], sizes[1:]))}}
+
+
+def _shape_leaves(network):
+    return jax.tree.flatten(parameter_shapes(network), is_leaf=lambda x: isinstance(x, tuple))
+
+
+def flatten(policy_params, network):
+    """Every parameter in one vector `[P, *runs]`, in `jax.tree.leaves` order, keeping any
+    trailing run axes: the parameters (or their gradients) of R runs as `[P, R]`."""
+    shapes, _ = _shape_leaves(network)
+    return jnp.concatenate([leaf.reshape(math.prod(shape), *leaf.shape[len(shape):])
+                            for leaf, shape in zip(jax.tree.leaves(policy_params), shapes)])
+
+
+def unflatten(flat, network):
+    """The `policy_params` of a vector `[P, *runs]` from `flatten`; numpy in, numpy out."""
+    shapes, tree = _shape_leaves(network)
+    bounds = np.cumsum([0, *(math.prod(shape) for shape in shapes)])
+    return jax.tree.unflatten(tree, [flat[start:stop].reshape(*shape, *flat.shape[1:])
+                                     for shape, start, stop in zip(shapes, bounds, bounds[1:])])
 
 
 def log_prob(logit, action):

@@ -125,11 +125,13 @@ def check_optimizer(name):
 class TrainState(NamedTuple):
     """The carry of R runs from iteration to iteration.
 
-    Parameters and optimizer state hold the runs on their last axis, where they meet each run's
-    episodes `[T, E, R]`; the keys are `[R, 2]`.
+    Each run's parameters are one vector (`policies.flatten`), and so are its optimizer's
+    moments: its step is then a few kernels rather than a few per weight matrix and bias, which
+    XLA compiles sooner. Parameters and optimizer state hold the runs on their last axis
+    (parameters `[P, R]`), where they meet each run's episodes `[T, E, R]`; the keys are `[R, 2]`.
     """
 
-    policy_params: dict
+    policy_params: jax.Array
     opt_state: optax.OptState
     key: jax.Array
 
@@ -185,10 +187,11 @@ def loss_and_grad(policy_params, network, transitions, advantages):
       (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
     """
     runs = advantages.ndim - 2
+    # Counted before any padding: the same sum as the normalisation's, which XLA computes once.
+    count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(advantages.dtype), (0, 1)), 1)
     if _alone(advantages.shape):
         transitions, advantages = _padded_episodes(transitions, advantages, rollout.LANES)
     weights = jnp.where(transitions.alive, advantages, 0.0)
-    count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(weights.dtype), (0, 1)), 1)
     layers = policy_params["params"]
     names = [f"Dense_{i}" for i in range(len(layers))]
     terms, inputs, cotangents = _step_signals(policy_params, network, transitions, weights)
@@ -283,8 +286,10 @@ def make_optimizer(config, learning_rate):
 
 
 def init_run(config, key, hyperparams):
-    """The initial policy parameters and optimizer state of one run."""
-    policy_params = policies.init_network(jax.random.split(key)[1], config.network)
+    """The initial policy parameters `[P]` (`policies.flatten`) and optimizer state of one run."""
+    network = config.network
+    policy_params = policies.flatten(
+        policies.init_network(jax.random.split(key)[1], network), network)
     opt_state = make_optimizer(config, hyperparams.learning_rate).init(policy_params)
     return policy_params, opt_state
 
@@ -321,9 +326,13 @@ def iterate(config, train_state, hyperparams):
     # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
     # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
     alone = key_rollout.shape[0] == 1
-    params = _without_runs(train_state.policy_params, 1) if alone else train_state.policy_params
+    flat = train_state.policy_params[:, 0] if alone else train_state.policy_params
+
+    def policy(obs, u):  # parameters taken apart where the rollout's kernels use them
+        return policies.network_policy(network, policies.unflatten(flat, network))(obs, u)
+
     episodes = rollout.rollout(
-        key_rollout[0] if alone else key_rollout, policies.network_policy(network, params),
+        key_rollout[0] if alone else key_rollout, policy,
         config.env_params, config.episodes, config.max_steps,
         lanes=rollout.LANES if alone else 1,
     )
@@ -339,7 +348,9 @@ def iterate(config, train_state, hyperparams):
     )
 
     # One optimizer step on the REINFORCE loss.
-    loss, grads = loss_and_grad(train_state.policy_params, network, transitions, advantages)
+    loss, grads = loss_and_grad(policies.unflatten(train_state.policy_params, network), network,
+                                transitions, advantages)
+    grads = policies.flatten(grads, network)
     # The step runs with the runs first: on the last axis, XLA's vectorised and scalar loops
     # round a run's update differently for different numbers of runs.
     runs_first = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, -1, 0))
@@ -355,7 +366,9 @@ def iterate(config, train_state, hyperparams):
         max_return=episodes.returns.max(axis=0),
         mean_length=episodes.lengths.mean(axis=0),
         loss=loss,
-        grad_norm=jax.vmap(global_norm, in_axes=-1)(grads),
+        # Summed by parameter: over the one vector, LLVM fuses a few of the squares into the
+        # additions for one number of runs and not another.
+        grad_norm=jax.vmap(global_norm, in_axes=-1)(policies.unflatten(grads, network)),
     )
     return TrainState(policy_params, opt_state, key), metrics
 
@@ -367,6 +380,7 @@ MEAN_RETURN = Metrics._fields.index("mean_return")
 class Program(NamedTuple):
     """The compiled training of R runs at once, for one `TrainConfig`."""
 
+    network: policies.PolicyNetwork  # whose parameters TrainState.policy_params holds, flat
     init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
     # (TrainState [R], Hyperparams [R], count: int32 scalar) -> (TrainState [R], Metrics' fields
     # stacked [ITERATIONS_PER_CALL, len(Metrics._fields), R]): `count` iterations (at most
@@ -394,6 +408,7 @@ ITERATE_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 @functools.lru_cache(maxsize=32)
 def _program(config):
     return Program(
+        config.network,
         executables.Stored(
             jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
             "init", config),
@@ -519,8 +534,8 @@ def run(program, iterations, parts, on_iteration=None):
         rows = np.concatenate([np.concatenate(m, axis=-1)[:count]
                                for m, (_, count) in zip(metrics, schedule)])  # [I, fields, R_p]
         stacked = Metrics(*np.moveaxis(rows, 0, -1))
-        params = jax.tree.map(lambda *leaves: np.concatenate(leaves, axis=-1),
-                              *[finals[i].policy_params for i in mine])
+        params = policies.unflatten(
+            np.concatenate([finals[i].policy_params for i in mine], axis=-1), program.network)
         results.append(TrainResult(jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), params),
                                    stacked))
     return results

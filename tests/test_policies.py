@@ -71,6 +71,25 @@ def test_forward_equals_the_module_also_for_many_runs_at_once():
         np.testing.assert_allclose(together[:, r], alone, rtol=1e-6)
 
 
+@pytest.mark.parametrize("hidden", [(5,), (3, 7), tuple(range(1, 12))])  # 11 layers: Dense_10
+def test_parameters_flatten_into_one_vector_and_back(hidden):
+    network = policies.PolicyNetwork(hidden=hidden)
+    keys = jax.random.split(jax.random.PRNGKey(4), 3)
+    runs = [policies.init_network(key, network) for key in keys]
+    assert jax.tree.map(np.shape, runs[0]) == policies.parameter_shapes(network)
+    stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves, axis=-1), *runs)  # runs last
+    flat = policies.flatten(stacked, network)
+    size = sum(leaf.size for leaf in jax.tree.leaves(runs[0]))
+    assert flat.shape == (size, 3)
+    np.testing.assert_array_equal(
+        flat[:, 1], np.concatenate([leaf.ravel() for leaf in jax.tree.leaves(runs[1])]))
+    back = policies.unflatten(np.asarray(flat), network)  # on the host, as `reinforce.run` does
+    assert all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(back))
+    chex.assert_trees_all_equal(back, jax.tree.map(np.asarray, stacked))
+    chex.assert_trees_all_equal(policies.unflatten(policies.flatten(runs[2], network), network),
+                                runs[2])
+
+
 @pytest.mark.parametrize("hidden, activation, match", [((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((), "elu", "hidden")])
 def test_bad_network_settings(hidden, activation, match):
     with pytest.raises(ValueError, match=match):

@@ -201,7 +201,8 @@ def test_calls_of_several_iterations_train_as_calls_of_one(num_runs, iterations)
     chex.assert_trees_all_equal(result.metrics, one_at_a_time)
     chex.assert_trees_all_equal(
         result.policy_params,
-        jax.tree.map(lambda leaf: np.moveaxis(np.asarray(leaf), -1, 0), state.policy_params))
+        jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0),
+                     policies.unflatten(np.asarray(state.policy_params), config.network)))
 
 
 @pytest.mark.parametrize("field, value, match", [
