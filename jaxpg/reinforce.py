@@ -186,15 +186,18 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     Returns:
       (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
     """
-    runs = advantages.ndim - 2
+    run_shape = advantages.shape[2:]
     # Counted before any padding: the same sum as the normalisation's, which XLA computes once.
     count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(advantages.dtype), (0, 1)), 1)
-    if _alone(advantages.shape):
+    alone = _alone(advantages.shape)
+    if alone:
         transitions, advantages = _padded_episodes(transitions, advantages, rollout.LANES)
     weights = jnp.where(transitions.alive, advantages, 0.0)
     layers = policy_params["params"]
     names = [f"Dense_{i}" for i in range(len(layers))]
     terms, inputs, cotangents = _step_signals(policy_params, network, transitions, weights)
+    # A run alone's signals come without its run axes, which its totals get back at the end.
+    runs = 0 if alone else len(run_shape)
 
     # Summed over time per episode; steps after every episode ended weigh nothing.
     def add_step(t, totals):
@@ -206,17 +209,18 @@ def loss_and_grad(policy_params, network, transitions, advantages):
                  for (kernel, bias), x, d in zip(layer_totals, inputs, cotangents)]
         return loss_total + at(terms, 0), added
 
-    episode_shape = weights.shape[1:]
+    episode_shape = terms.shape[1:]
     zeros = (jnp.zeros(episode_shape, weights.dtype),
              [(jnp.zeros((x.shape[0], d.shape[0], *episode_shape), weights.dtype),
                jnp.zeros((d.shape[0], *episode_shape), weights.dtype))
               for x, d in zip(inputs, cotangents)])
     any_alive = jnp.any(transitions.alive, axis=tuple(range(1, weights.ndim)))  # [T]
-    lived = jnp.max(jnp.where(any_alive, jnp.arange(1, weights.shape[0] + 1), 0))
+    lived = jnp.max(jnp.where(any_alive, np.arange(1, weights.shape[0] + 1), 0))
     totals = jax.lax.fori_loop(0, lived, add_step, zeros)
 
-    def over_episodes(total):  # -[..., E, *runs] summed over E, per alive step
-        return -sums.invariant_sum(total, total.ndim - runs - 1) / count
+    def over_episodes(total):  # -[..., E, *runs] summed over E, per alive step, [..., *run_shape]
+        total = sums.invariant_sum(total, total.ndim - runs - 1)
+        return -total.reshape(total.shape[:total.ndim - runs] + run_shape) / count
 
     loss, layer_totals = jax.tree.map(over_episodes, totals)
     grads = {"params": {name: {"kernel": kernel, "bias": bias}
@@ -245,8 +249,9 @@ def _step_signals(policy_params, network, transitions, weights):
     features `[K, T, E, *runs]` and output cotangent `[N, T, E, *runs]`, computed at once.
 
     The cotangents are the gradient with respect to zero offsets on each layer's output. A run
-    alone computes them over its steps and episodes as one axis, without run axes: XLA vectorises
-    over the last axis, which a run axis of size one would be.
+    alone computes them over its steps and episodes as one axis, and returns them without run
+    axes (`[T, E]`, `[K, T, E]`, `[N, T, E]`): XLA vectorises over the last axis, which a run axis
+    of size one would be, and gives such arrays other layouts than the loop over them takes.
     """
     shape = weights.shape
     obs, action = transitions.obs, transitions.action
@@ -265,8 +270,8 @@ def _step_signals(policy_params, network, transitions, weights):
     log_prob, vjp, inputs = jax.vjp(forward, offsets, has_aux=True)
     (cotangents,) = vjp(weights)
     signals = (weights * log_prob, inputs, cotangents)
-    if alone:  # back to [..., T, E, *runs]
-        signals = jax.tree.map(lambda leaf: leaf.reshape(*leaf.shape[:-1], *shape), signals)
+    if alone:  # back to [..., T, E]
+        signals = jax.tree.map(lambda leaf: leaf.reshape(*leaf.shape[:-1], *shape[:2]), signals)
     return signals
 
 
@@ -423,7 +428,7 @@ def _iterate_stacked(config, train_state, hyperparams, count):
     def one(i, carry):
         train_state, history = carry
         train_state, metrics = iterate(config, train_state, hyperparams)
-        return train_state, history.at[i].set(jnp.stack(metrics))
+        return train_state, jax.lax.dynamic_update_index_in_dim(history, jnp.stack(metrics), i, 0)
 
     history = jnp.zeros((ITERATIONS_PER_CALL, len(Metrics._fields),
                          *hyperparams.learning_rate.shape), jnp.result_type(float))

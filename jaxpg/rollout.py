@@ -108,7 +108,7 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
     chunk = min(CHUNK, max_steps)
     num_chunks = -(-max_steps // chunk)
     noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes), repeat=(2, played))
-    steps = jnp.arange(num_chunks * chunk, dtype=jnp.int32).reshape(num_chunks, chunk)
+    steps = np.arange(num_chunks * chunk, dtype=np.int32).reshape(num_chunks, chunk)  # a constant
 
     # The carry is one array, the features and whether the episode ended `[5, E, R]`, and so is a
     # step's record: a step is then few enough kernels for XLA to run them one after another
@@ -142,10 +142,9 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
     _, records = jax.lax.scan(one_chunk, carry, (noise, steps))
     records = records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps, :, :num_episodes]
-    transitions = _transitions(records)
-    returns = transitions.reward.sum(axis=0)
-    lengths = transitions.alive.sum(axis=0)
-    return Episodes(transitions, returns, lengths)
+    # Rewards and alive steps summed in one reduction, exactly: their sums are whole numbers.
+    returns, alive_steps = records[:, 5:7].sum(axis=0)
+    return Episodes(_transitions(records), returns, alive_steps.astype(jnp.int32))
 
 
 class StreamState(NamedTuple):
