@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from jaxpg import cartpole, reinforce, results
+from jaxpg import cartpole, policies, reinforce, results
 
 FORMAT = "jaxpg-checkpoint"
 FORMAT_VERSION = 1
@@ -130,11 +130,8 @@ def config_from_dict(fields):
 
 def _check_params_match(policy_params, config, where):
     """Raises a ValueError unless `policy_params` has the shapes of `config`'s network."""
-    # Abstract arguments only: a concrete key would cost a compiled program.
-    expected = jax.eval_shape(config.network.init, jax.ShapeDtypeStruct((2,), jnp.uint32),
-                              jax.ShapeDtypeStruct((4,), jnp.float32))
     shapes = jax.tree.map(np.shape, serialization.to_state_dict(policy_params))
-    want = jax.tree.map(lambda leaf: leaf.shape, expected)
+    want = policies.parameter_shapes(config.network)
     if shapes != want:
         raise ValueError(
             f"{where}: parameters do not fit the network of hidden={config.hidden}; "

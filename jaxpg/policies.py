@@ -167,13 +167,19 @@ def _shape_leaves(network):
 def flatten(policy_params, network):
     """Every parameter in one vector `[P, *runs]`, in `jax.tree.leaves` order, keeping any
     trailing run axes: the parameters (or their gradients) of R runs as `[P, R]`."""
-    shapes, _ = _shape_leaves(network)
+    shapes, tree = _shape_leaves(network)
+    leaves = jax.tree.leaves(policy_params)
+    if jax.tree.structure(policy_params) != tree or any(
+            leaf.shape[:len(shape)] != shape for leaf, shape in zip(leaves, shapes)):
+        raise ValueError(f"policy_params: expected the parameters of hidden={network.hidden}, "
+                         f"shaped {parameter_shapes(network)} before any run axes")
     return jnp.concatenate([leaf.reshape(math.prod(shape), *leaf.shape[len(shape):])
-                            for leaf, shape in zip(jax.tree.leaves(policy_params), shapes)])
+                            for leaf, shape in zip(leaves, shapes)])
 
 
 def unflatten(flat, network):
-    """The `policy_params` of a vector `[P, *runs]` from `flatten`; numpy in, numpy out."""
+    """The `policy_params` of a vector `[P, *runs]` from `flatten`, as arrays of the same kind
+    (numpy ones on the host, jax ones in a traced program)."""
     shapes, tree = _shape_leaves(network)
     bounds = np.cumsum([0, *(math.prod(shape) for shape in shapes)])
     return jax.tree.unflatten(tree, [flat[start:stop].reshape(*shape, *flat.shape[1:])

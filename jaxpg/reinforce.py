@@ -125,9 +125,9 @@ def check_optimizer(name):
 class TrainState(NamedTuple):
     """The carry of R runs from iteration to iteration.
 
-    Each run's parameters are one vector (`policies.flatten`), and so are its optimizer's
-    moments: its step is then a few kernels rather than a few per weight matrix and bias, which
-    XLA compiles sooner. Parameters and optimizer state hold the runs on their last axis
+    Each run's parameters are one vector (`policies.flatten`), and so are the moments of an
+    optimizer in `ELEMENTWISE_OPTIMIZERS` (Adam among them): its step is then a few kernels rather
+    than a few per weight matrix and bias, which XLA compiles sooner. Parameters and optimizer state hold the runs on their last axis
     (parameters `[P, R]`), where they meet each run's episodes `[T, E, R]`; the keys are `[R, 2]`.
     """
 
@@ -180,7 +180,7 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     `rollout.LANES`, which made 1 seed train about 40 % sooner. With finite parameters the padding
     changes no sum: a padded episode's totals stay +0 (a total, starting at +0, is never -0, so
     adding zeros keeps it), `sums.invariant_sum` pads the episode axis with zeros anyway, and the
-    count of alive steps is an exact sum of ones.
+    count of alive steps is taken before the padding.
     The step signals take `[K, T, E, R]` floats per layer, which a sweep's memory budget counts.
 
     Returns:
@@ -290,12 +290,33 @@ def make_optimizer(config, learning_rate):
     return OPTIMIZERS[config.optimizer](learning_rate=learning_rate)
 
 
+# Optimizers that update each parameter from its own history alone. They step a run's parameters
+# as the one vector they are kept in, in a few kernels; any other optimizer steps each parameter
+# array as optax defines it (lamb's and lars's trust ratios, adafactor's factored moments, ...).
+# `tests/test_reinforce.py` checks every name here against the per-array update.
+ELEMENTWISE_OPTIMIZERS = frozenset({
+    "adabelief", "adadelta", "adagrad", "adam", "adamax", "adamaxw", "adamw", "adan", "amsgrad",
+    "lion", "optimistic_adam_v2", "optimistic_gradient_descent", "radam", "rmsprop", "rprop", "sgd",
+    "sign_sgd", "signum", "yogi",
+})
+
+
+def _optimizer_view(config):
+    """(to, back): a run's flat parameters `[P]` (or gradient) as its optimizer takes them."""
+    if config.optimizer in ELEMENTWISE_OPTIMIZERS:
+        return (lambda flat: flat), (lambda flat: flat)
+    network = config.network
+    return (functools.partial(policies.unflatten, network=network),
+            functools.partial(policies.flatten, network=network))
+
+
 def init_run(config, key, hyperparams):
     """The initial policy parameters `[P]` (`policies.flatten`) and optimizer state of one run."""
     network = config.network
     policy_params = policies.flatten(
         policies.init_network(jax.random.split(key)[1], network), network)
-    opt_state = make_optimizer(config, hyperparams.learning_rate).init(policy_params)
+    to_optimizer, _ = _optimizer_view(config)
+    opt_state = make_optimizer(config, hyperparams.learning_rate).init(to_optimizer(policy_params))
     return policy_params, opt_state
 
 
@@ -308,10 +329,13 @@ def init_runs(config, keys, hyperparams):
 
 
 def optimizer_step(config, grads, opt_state, policy_params, learning_rate):
-    """One optimizer step of one run: (policy_params, opt_state)."""
-    optimizer = make_optimizer(config, learning_rate)
-    updates, opt_state = optimizer.update(grads, opt_state, policy_params)
-    return optax.apply_updates(policy_params, updates), opt_state
+    """One optimizer step of one run, on its flat parameters and gradient `[P]`:
+    (policy_params `[P]`, opt_state)."""
+    to_optimizer, back = _optimizer_view(config)
+    params = to_optimizer(policy_params)
+    updates, opt_state = make_optimizer(config, learning_rate).update(
+        to_optimizer(grads), opt_state, params)
+    return back(optax.apply_updates(params, updates)), opt_state
 
 
 def iterate(config, train_state, hyperparams):

@@ -7,6 +7,7 @@ import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 from jaxpg import TrainConfig, evaluate, policies, reinforce, returns, rollout, train
@@ -225,6 +226,49 @@ def test_any_optax_optimizer_by_name():
     result = train(TrainConfig(iterations=2, episodes=2, max_steps=10, optimizer="sgd",
                                hidden=(3, 3), activation="tanh"), seed=0, show_progress=False)
     assert np.all(np.isfinite(result.metrics.loss))
+
+
+def _steps_on_each_array(config, grads, params):
+    """optax's own steps of `config.optimizer` on the parameters as arrays, flattened after."""
+    optimizer = reinforce.make_optimizer(config, config.learning_rate)
+    state = optimizer.init(params)
+    for grad in grads:
+        updates, state = optimizer.update(grad, state, params)
+        params = optax.apply_updates(params, updates)
+    return policies.flatten(params, config.network)
+
+
+def _optimizer_steps(config, grads, params):
+    """The same steps as `reinforce.optimizer_step` takes them, on flat parameters."""
+    flat = policies.flatten(params, config.network)
+    _, opt_state = reinforce.init_run(config, jax.random.PRNGKey(0), config.hyperparams)
+    for grad in grads:
+        flat, opt_state = reinforce.optimizer_step(
+            config, policies.flatten(grad, config.network), opt_state, flat,
+            config.learning_rate)
+    return flat
+
+
+@pytest.mark.parametrize("name", sorted(reinforce.ELEMENTWISE_OPTIMIZERS) + ["lamb", "adafactor"])
+def test_optimizers_step_as_optax_defines_them_on_each_array(name):
+    """The optimizers stepped on the flat vector update each parameter as they would per array;
+    the others (lamb's per-layer trust ratio, adafactor's factored moments) step per array."""
+    config = TrainConfig(optimizer=name, hidden=(5, 3))
+    params = policies.init_network(jax.random.PRNGKey(1), config.network)
+    rng = np.random.default_rng(2)
+    grads = [jax.tree.map(lambda leaf: rng.normal(size=leaf.shape).astype(np.float32), params)
+             for _ in range(3)]
+    expected = _steps_on_each_array(config, grads, params)
+    np.testing.assert_allclose(_optimizer_steps(config, grads, params), expected,
+                               rtol=1e-6, atol=1e-7)
+    if name not in reinforce.ELEMENTWISE_OPTIMIZERS:  # on one vector, another update
+        optimizer = reinforce.make_optimizer(config, config.learning_rate)
+        flat = policies.flatten(params, config.network)
+        state = optimizer.init(flat)
+        for grad in grads:
+            updates, state = optimizer.update(policies.flatten(grad, config.network), state, flat)
+            flat = optax.apply_updates(flat, updates)
+        assert not np.allclose(flat, expected, rtol=1e-3, atol=1e-4)
 
 
 def test_run_keys_are_jax_prng_keys():
