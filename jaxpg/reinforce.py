@@ -127,8 +127,9 @@ class TrainState(NamedTuple):
 
     Each run's parameters are one vector (`policies.flatten`), and so are the moments of an
     optimizer in `ELEMENTWISE_OPTIMIZERS` (Adam among them): its step is then a few kernels rather
-    than a few per weight matrix and bias, which XLA compiles sooner. Parameters and optimizer state hold the runs on their last axis
-    (parameters `[P, R]`), where they meet each run's episodes `[T, E, R]`; the keys are `[R, 2]`.
+    than a few per weight matrix and bias, which XLA compiles sooner. Parameters and optimizer
+    state hold the runs on their last axis (parameters `[P, R]`), where they meet each run's
+    episodes `[T, E, R]`; the keys are `[R, 2]`.
     """
 
     policy_params: jax.Array
