@@ -378,9 +378,9 @@ def iterate(config, train_state, hyperparams):
     )
 
     # One optimizer step on the REINFORCE loss.
-    loss, grads = loss_and_grad(policies.unflatten(train_state.policy_params, network), network,
-                                transitions, advantages)
-    grads = policies.flatten(grads, network)
+    loss, grad_arrays = loss_and_grad(policies.unflatten(train_state.policy_params, network),
+                                      network, transitions, advantages)
+    grads = policies.flatten(grad_arrays, network)
     # The step runs with the runs first: on the last axis, XLA's vectorised and scalar loops
     # round a run's update differently for different numbers of runs.
     runs_first = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, -1, 0))
@@ -396,9 +396,9 @@ def iterate(config, train_state, hyperparams):
         max_return=episodes.returns.max(axis=0),
         mean_length=episodes.lengths.mean(axis=0),
         loss=loss,
-        # Summed by parameter: over the one vector, LLVM fuses a few of the squares into the
-        # additions for one number of runs and not another.
-        grad_norm=jax.vmap(global_norm, in_axes=-1)(policies.unflatten(grads, network)),
+        # Summed by parameter array: over the one vector, LLVM fuses a few of the squares into
+        # the additions for one number of runs and not another.
+        grad_norm=jax.vmap(global_norm, in_axes=-1)(grad_arrays),
     )
     return TrainState(policy_params, opt_state, key), metrics
 
