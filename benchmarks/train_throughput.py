@@ -2,8 +2,9 @@
 
 jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) at once with
 `reinforce.run`, whose compiled program runs ten iterations a call; compiling its two programs
-(`.lower(...).compile()` of `init` and `iterate`, for each size of block of runs that `run` trains:
-`reinforce.part_blocks`) is timed apart from the runs, which follow one untimed warm-up run. The
+(`init` and `iterate`, for each size of block of runs that `run` trains: `reinforce.part_blocks`,
+as `run` compiles them: `reinforce.prepare`) is timed apart from the runs, which follow one
+untimed warm-up run. The
 numpy book implementation (`book_numpy.py`: one seed, one step at a time on Gymnasium's
 CartPole-v1) runs in the same process for scale.
 
@@ -28,6 +29,7 @@ already passes backend options; XLA's own defaults are measured with `XLA_FLAGS`
 
 import argparse
 import dataclasses
+import time
 
 import book_numpy
 import common
@@ -59,19 +61,34 @@ def skipped_fraction(config, max_lengths):
     return 1.0 - computed / (config.max_steps * config.iterations * max_lengths.shape[0])
 
 
+def compile_programs(program, blocks):
+    """Compiles `program` for `blocks` as `reinforce.run` does (`reinforce.prepare`), timed.
+
+    Returns:
+      {"lower_s": until every program is traced and lowered, "compile_s": then until every one is
+      compiled}; `iterate`'s compile starts while `init` is still being traced, so their sum is
+      the time `run` takes to have its programs, and neither part alone is XLA's.
+    """
+    start = time.perf_counter()
+    programs = reinforce.prepare(program, blocks)
+    lowered_at = time.perf_counter()
+    for compiled in programs:
+        compiled.result()
+    done = time.perf_counter()
+    return {"lower_s": lowered_at - start, "compile_s": done - lowered_at}
+
+
 def measure_jaxpg(config, num_runs, repeats):
     """Compiles the training of `num_runs` seeds, runs it once, then times `repeats` runs."""
     # Seeds 0..R-1 under the config's own settings, passed as a sweep passes them.
     keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
+    # Compiled afresh, even where an earlier row had the same size of block.
+    jax.clear_caches()
+    reinforce._program.cache_clear()
     program = reinforce.compiled_program(config)
     parts = [(keys, hyperparams)]
-    jax.clear_caches()  # compiled afresh, even where an earlier row had the same size of block
-    times = []  # the programs `reinforce.run` compiles: init and iterate for each size of block
-    for block in {len(block[0]): block for block in reinforce.part_blocks(parts[0])}.values():
-        times.append(common.compile_jitted(program.init, *block)[1])
-        times.append(common.compile_jitted(
-            program.iterate, program.init(*block), block[1], np.int32(1))[1])
-    reinforce.run(program, config.iterations, parts)  # warm-up: fills jit's own cache
+    times = compile_programs(program, reinforce.part_blocks(parts[0]))
+    reinforce.run(program, config.iterations, parts)  # warm-up
     timing, (result,) = common.time_calls(
         reinforce.run, program, config.iterations, parts, repeats=repeats
     )
@@ -82,8 +99,7 @@ def measure_jaxpg(config, num_runs, repeats):
     return _row("jaxpg", num_runs, config.iterations, timing["median_s"], simulated, padded,
                 np.mean(np.asarray(metrics.mean_return)[:, -1]),
                 times_s=timing["times_s"], skipped_fraction=skipped,
-                lower_s=sum(t["lower_s"] for t in times),
-                compile_s=sum(t["compile_s"] for t in times))
+                **times)
 
 
 def measure_book(config, iterations, env_id):

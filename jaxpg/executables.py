@@ -1,4 +1,9 @@
-"""Compiled programs kept on disk whole, so that a later process neither traces nor compiles them.
+"""Programs compiled ahead of their first call, and kept on disk whole, so that a later process
+neither traces nor compiles them.
+
+XLA compiles without holding Python's lock. `Stored.prepare` traces and lowers a program in the
+calling thread and compiles it on another, so that the caller can go on to trace the next program
+(`reinforce.prepare`: `init` is traced and compiled while `iterate`, the longer, compiles).
 
 JAX's persistent compilation cache saves XLA's compiling, but a process that looks a program up
 there still traces and lowers the Python function to find its key: about a second for the
@@ -9,10 +14,12 @@ configuration and `XLA_FLAGS`.
 
 Nothing is kept until `enable` names a directory, and nothing that JAX's persistent cache supplied:
 an executable loaded from a file loses some of its kernels when it is serialised again, so only
-programs that XLA compiled in this process are kept, and none while JAX's cache is on. A file that cannot be loaded
-is compiled again and replaced; a directory that cannot be written means only that nothing is kept.
+programs that XLA compiled in this process are kept, and none while JAX's cache is on. A file
+that cannot be loaded is compiled again and replaced; a directory that cannot be written means
+only that nothing is kept.
 """
 
+import concurrent.futures
 import functools
 import hashlib
 import logging
@@ -69,8 +76,8 @@ def _environment():
 _CACHE_HIT = "/jax/compilation_cache/cache_hits"
 
 
-def _compile(jitted, args):
-    """(`jitted` compiled for `args`, whether XLA compiled it now rather than JAX's cache)."""
+def _compile(lowered):
+    """(`lowered` compiled, whether XLA compiled it now rather than JAX's cache)."""
     thread, hits = threading.get_ident(), []
 
     def listen(event, **kwargs):
@@ -79,17 +86,37 @@ def _compile(jitted, args):
 
     jax.monitoring.register_event_listener(listen)
     try:
-        return jitted.lower(*args).compile(), not hits
+        return lowered.compile(), not hits
     finally:
         jax.monitoring.unregister_event_listener(listen)
 
 
-class Stored:
-    """A jitted function whose compiled programs are kept in the enabled directory.
+@functools.cache
+def _compiler():
+    """The threads that compile the programs prepared ahead of their calls."""
+    return concurrent.futures.ThreadPoolExecutor(os.cpu_count(), "jaxpg-compile")
 
-    Called with concrete arrays while storing is in use, it runs the program kept for their
-    shapes, dtypes and devices: found in memory, loaded from disk, or compiled and written there.
-    Otherwise (and for anything but calls, such as `lower`) it is the jitted function itself.
+
+def _done(program):
+    future = concurrent.futures.Future()
+    future.set_result(program)
+    return future
+
+
+def _placement(leaf):
+    """Where an argument is placed: its sharding, or None where JAX places it (a numpy array, or a
+    jax array not committed to its device)."""
+    return getattr(leaf, "sharding", None) if getattr(leaf, "committed", True) else None
+
+
+class Stored:
+    """A jitted function whose programs can be compiled ahead of their calls, and are kept in the
+    enabled directory.
+
+    Called with concrete arrays, it runs the program that `prepare` started for their shapes,
+    dtypes and placement (waiting for it to compile), or, while storing is in use, the program kept
+    for them: found in memory, loaded from disk, or compiled and written there. Otherwise (and for
+    anything but calls, such as `lower`) it is the jitted function itself.
 
     Args:
       jitted: a `jax.jit` function of arrays only.
@@ -101,54 +128,115 @@ class Stored:
         self._jitted = jitted
         self._name = name
         self._settings = repr(settings)
-        self._compiled = {}  # (directory, argument signature) -> program
+        self._programs = {}  # (directory, argument signature) -> Future of the program
         self._lock = threading.Lock()
 
     def __getattr__(self, name):
         return getattr(self._jitted, name)
 
     def __call__(self, *args):
-        if _directory is None:
-            return self._jitted(*args)
         leaves, tree = jax.tree.flatten(args)
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves) or not _in_use():
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves) or not (
+                self._programs or _in_use()):
             return self._jitted(*args)
-        signature = (_directory, tree, tuple(
-            (leaf.shape, leaf.dtype, getattr(leaf, "sharding", None)) for leaf in leaves))
-        compiled = self._compiled.get(signature)
-        if compiled is None:
-            with self._lock:  # one thread compiles; the others wait for its program
-                compiled = self._compiled.get(signature) or self._load_or_compile(args, signature)
-                self._compiled[signature] = compiled
-        return compiled(*args)
+        signature = self._signature(tree, leaves)
+        with self._lock:  # one thread compiles; the others wait for its program
+            program = self._programs.get(signature)
+            if program is None and signature[0] is not None:
+                program = self._programs[signature] = self._start(args, signature, ahead=False)
+        return (self._jitted if program is None else program.result())(*args)
 
-    def _load_or_compile(self, args, signature):
-        """The program for `args`: loaded, or compiled and kept; the jitted function itself for
-        arguments on several devices, whose programs are not kept."""
+    def prepare(self, *args):
+        """Starts compiling (or loading) the program for arguments like `args`, and returns the
+        `concurrent.futures.Future` of it; a call with such arguments waits for it.
+
+        `args` are arrays, or `jax.ShapeDtypeStruct`s shaped, typed and placed (`sharding`, None
+        for the default device) as the call's arrays will be. This thread traces and lowers the
+        function; another compiles it, so that this one can go on to trace the next.
+        """
+        leaves, tree = jax.tree.flatten(args)
+        signature = self._signature(tree, leaves)
+        with self._lock:
+            program = self._programs.get(signature)
+            if program is None:
+                program = self._programs[signature] = self._start(args, signature, ahead=True)
+        return program
+
+    def loaded(self, *args):
+        """The program for arguments like `args` (as for `prepare`) where it is at hand without
+        compiling: compiled already, or kept on disk (then loaded); otherwise None."""
+        leaves, tree = jax.tree.flatten(args)
+        signature = self._signature(tree, leaves)
+        with self._lock:
+            program = self._programs.get(signature)
+            if program is None:
+                compiled = self._load(signature)
+                if compiled is None:
+                    return None
+                program = self._programs[signature] = _done(compiled)
+        if not program.done() or program.exception() is not None:
+            return None
+        return None if program.result() is self._jitted else program.result()
+
+    def _signature(self, tree, leaves):
+        return (_directory if _in_use() else None, tree,
+                tuple((leaf.shape, leaf.dtype, _placement(leaf)) for leaf in leaves))
+
+    def _start(self, args, signature, ahead):
+        """The Future of the program for `args`: loaded, or lowered now and compiled (on a thread
+        when `ahead`) and kept; the jitted function itself for arguments on several devices, whose
+        programs are neither compiled ahead nor kept."""
+        if _device(signature) is None:
+            return _done(self._jitted)
+        compiled = self._load(signature)
+        if compiled is not None:
+            return _done(compiled)
+        path = self._path(signature)
+        lowered = self._jitted.lower(*args)
+
+        def compile_and_keep():
+            compiled, fresh = _compile(lowered)
+            if fresh and path is not None:
+                self._keep(compiled, path)
+            return compiled
+
+        return _compiler().submit(compile_and_keep) if ahead else _done(compile_and_keep())
+
+    def _path(self, signature):
+        """The file that keeps the program for `signature`; None while storing is not in use."""
         directory, tree, arguments = signature
-        devices = {device for _, _, sharding in arguments if sharding is not None
-                   for device in sharding.device_set} or {jax.devices()[0]}
-        if len(devices) > 1:
-            return self._jitted
-        (device,) = devices
+        if directory is None:
+            return None
         arguments = [(shape, str(dtype), str(sharding)) for shape, dtype, sharding in arguments]
         key = repr((self._name, self._settings, str(tree), arguments, _environment()))
-        path = directory / f"{self._name}-{hashlib.sha256(key.encode()).hexdigest()[:40]}.pickle"
+        return directory / f"{self._name}-{hashlib.sha256(key.encode()).hexdigest()[:40]}.pickle"
+
+    def _load(self, signature):
+        """The program kept for `signature`, loaded; None where there is none that loads."""
+        device, path = _device(signature), self._path(signature)
+        if device is None or path is None:
+            return None
         try:
             compiled = serialize_executable.deserialize_and_load(
                 *pickle.loads(path.read_bytes()), execution_devices=[device])
-            logger.debug("loaded %s from %s", self._name, path)
-            return compiled
         except FileNotFoundError:
-            pass
-        except Exception as error:  # a damaged file: compile again and replace it
+            return None
+        except Exception as error:  # a damaged file: compiled again and replaced
             logger.warning("could not load %s (%s); compiling it again", path, error)
-        compiled, fresh = _compile(self._jitted, args)
-        if not fresh:
-            return compiled
+            return None
+        logger.debug("loaded %s from %s", self._name, path)
+        return compiled
+
+    def _keep(self, compiled, path):
         try:
-            directory.mkdir(parents=True, exist_ok=True)
+            path.parent.mkdir(parents=True, exist_ok=True)
             results.atomic_write(path, pickle.dumps(serialize_executable.serialize(compiled)))
         except (OSError, ValueError) as error:
-            logger.warning("could not keep %s in %s (%s)", self._name, directory, error)
-        return compiled
+            logger.warning("could not keep %s in %s (%s)", self._name, path.parent, error)
+
+
+def _device(signature):
+    """The one device that a program for `signature` runs on; None for arguments on several."""
+    devices = {device for _, _, sharding in signature[2] if sharding is not None
+               for device in sharding.device_set} or {jax.devices()[0]}
+    return next(iter(devices)) if len(devices) == 1 else None

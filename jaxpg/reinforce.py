@@ -408,7 +408,8 @@ MEAN_RETURN = Metrics._fields.index("mean_return")
 
 
 class Program(NamedTuple):
-    """The compiled training of R runs at once, for one `TrainConfig`."""
+    """The compiled training of R runs at once, for one `TrainConfig`: `executables.Stored`
+    functions, which `run` prepares before it calls them."""
 
     network: policies.PolicyNetwork  # whose parameters TrainState.policy_params holds, flat
     init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
@@ -499,7 +500,8 @@ def run(program, iterations, parts, on_iteration=None):
 
     On a CPU a part trains in `cpu_blocks`, spread over one thread per core: larger arrays no
     longer fit in the caches, and XLA runs such small programs on the thread that calls them. Runs
-    train alike in any batch, so the blocks change nothing in the results.
+    train alike in any batch, so the blocks change nothing in the results. The programs for every
+    size of block are compiled first, side by side (`prepare`).
 
     Args:
       program: from `compiled_program`.
@@ -516,6 +518,7 @@ def run(program, iterations, parts, on_iteration=None):
         for block in part_blocks(part):
             blocks.append(block)
             owners.append(index)
+    prepare(program, blocks)
     schedule = calls(iterations)
     history = [[None] * len(blocks) for _ in schedule]
     finals = [None] * len(blocks)
@@ -569,6 +572,30 @@ def run(program, iterations, parts, on_iteration=None):
         results.append(TrainResult(jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), params),
                                    stacked))
     return results
+
+
+def prepare(program, blocks):
+    """Starts compiling (or loading) `program` for `blocks`, a list of (keys `[R, 2]`,
+    `Hyperparams` `[R]`), and returns the `concurrent.futures.Future`s of their programs.
+
+    This thread traces and lowers `iterate` for each block first, then `init`; other threads
+    compile each program as soon as it is lowered. `iterate`'s compile, the longest, so runs while
+    `init` is traced and compiled.
+    """
+    iterates = [program.iterate.prepare(_state_like(program, keys, hyperparams), hyperparams,
+                                        np.int32(1)) for keys, hyperparams in blocks]
+    return iterates + [program.init.prepare(*block) for block in blocks]
+
+
+def _state_like(program, keys, hyperparams):
+    """The `TrainState` that `program.init(keys, hyperparams)` returns, as shapes placed as its
+    arrays will be: committed to the keys' device where the keys are. Read from `init`'s program
+    where it is at hand (kept on disk), traced otherwise."""
+    init = program.init.loaded(keys, hyperparams)
+    shapes = program.init.eval_shape(keys, hyperparams) if init is None else init.out_info
+    sharding = keys.sharding if isinstance(keys, jax.Array) and keys.committed else None
+    return jax.tree.map(
+        lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=sharding), shapes)
 
 
 def part_blocks(part):

@@ -1,5 +1,8 @@
-"""Fixtures shared by the sweep tests."""
+"""Fixtures and helpers shared by the tests."""
 
+import contextlib
+
+import jax
 import pytest
 
 from jaxpg import TrainConfig
@@ -16,3 +19,19 @@ SMALL_GRID = {"learning_rate": [0.01, 0.02]}
 def small_sweep():
     """The small sweep in one chunk on one device, the reference for chunked and sharded runs."""
     return sweep(SMALL_CONFIG, SMALL_SEEDS, SMALL_GRID, show_progress=True)
+
+
+@contextlib.contextmanager
+def xla_compiles():
+    """The names of the programs XLA compiles inside the block, one entry per compile."""
+    names = []
+
+    def listen(event, duration, fun_name=None, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            names.append(fun_name)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        yield names
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)

@@ -1,21 +1,25 @@
-"""Training programs kept on disk whole: reused by a later process without tracing or compiling."""
+"""Training programs compiled ahead of their calls, and kept on disk whole: reused by a later
+process without tracing or compiling."""
+
+import functools
 
 import chex
 import jax
 import numpy as np
 import pytest
+from conftest import xla_compiles
 from jax.experimental.compilation_cache import compilation_cache
 
-from jaxpg import executables, reinforce
+from jaxpg import executables, policies, reinforce
 from jaxpg.reinforce import TrainConfig
 
 CONFIG = TrainConfig(iterations=3, episodes=3, max_steps=20)
 
 
-def _train(seeds):
+def _train(seeds, place=lambda leaf: leaf):
     hyperparams = jax.tree.map(lambda v: np.full(len(seeds), v, np.float32), CONFIG.hyperparams)
-    (result,) = reinforce.run(reinforce.compiled_program(CONFIG), CONFIG.iterations,
-                              [(reinforce.run_keys(seeds), hyperparams)])
+    part = jax.tree.map(place, (reinforce.run_keys(seeds), hyperparams))
+    (result,) = reinforce.run(reinforce.compiled_program(CONFIG), CONFIG.iterations, [part])
     return result
 
 
@@ -33,15 +37,17 @@ def store(tmp_path):
     _new_process()
 
 
-def _no_compiling(*args, **kwargs):
-    raise AssertionError("compiled, though the program was kept")
+def _not_again(*args, **kwargs):
+    raise AssertionError("traced or compiled, though the program was kept")
 
 
 def test_a_kept_program_is_loaded_and_trains_exactly_the_same(store, monkeypatch):
     expected = _train([0, 1])  # store is on: compiled and written
     assert sorted(p.name.split("-")[0] for p in store.iterdir()) == ["init", "iterate"]
     _new_process()
-    monkeypatch.setattr(jax.stages.Lowered, "compile", _no_compiling)
+    monkeypatch.setattr(jax.stages.Lowered, "compile", _not_again)
+    monkeypatch.setattr(policies, "init_network", _not_again)  # traced by init
+    monkeypatch.setattr(reinforce, "iterate", _not_again)  # traced by iterate
     chex.assert_trees_all_equal(_train([0, 1]), expected)
     executables.disable()
     _new_process()
@@ -86,3 +92,36 @@ def test_a_program_from_jaxs_cache_is_not_kept(store, monkeypatch):
     monkeypatch.setattr(jax.stages.Lowered, "compile", from_jaxs_cache)
     _train([5])
     assert list(store.iterdir()) == []
+
+
+@pytest.mark.parametrize("kept", [False, True])
+@pytest.mark.parametrize("placed", [False, True], ids=["numpy", "committed"])
+def test_each_program_is_compiled_once_ahead_of_its_calls(kept, placed, tmp_path):
+    """`run` prepares its programs for the arrays its calls pass: numpy ones, or jax arrays
+    committed to a device (as a sweep places them), whose state stays committed there."""
+    if kept:
+        executables.enable(tmp_path)
+    _new_process()
+    place = functools.partial(jax.device_put, device=jax.devices()[0]) if placed else np.asarray
+    try:
+        with xla_compiles() as compiled:
+            result = _train([6, 7], place)
+    finally:
+        executables.disable()
+        _new_process()
+    # (Besides them, taking a block of committed arrays compiles a slice.)
+    assert [compiled.count(name) for name in ["jit(_iterate_stacked)", "jit(init_runs)"]] == [1, 1]
+    chex.assert_trees_all_equal(result, _train([6, 7]))
+
+
+def test_a_call_waits_for_the_program_being_compiled_ahead():
+    _new_process()
+    program = reinforce.compiled_program(CONFIG)
+    keys = reinforce.run_keys([8])
+    hyperparams = jax.tree.map(lambda v: np.full(1, v, np.float32), CONFIG.hyperparams)
+    with xla_compiles() as compiled:
+        future = program.init.prepare(keys, hyperparams)
+        state = program.init(keys, hyperparams)
+    assert compiled == ["jit(init_runs)"]
+    assert future.done()
+    chex.assert_trees_all_equal(state, program.init._jitted(keys, hyperparams))

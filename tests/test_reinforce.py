@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+from conftest import xla_compiles
 
 from jaxpg import TrainConfig, evaluate, policies, reinforce, returns, rollout, train
 
@@ -156,11 +157,12 @@ def test_a_rerun_is_bit_identical(book_run):
 def test_compiles_once_per_config():
     config = TrainConfig(iterations=2, episodes=2, max_steps=10)
     reinforce._program.cache_clear()
-    first = train(config, seed=0, show_progress=False)
-    second = train(config, seed=1, show_progress=False)
-    train(dataclasses.replace(config, iterations=3), seed=0, show_progress=False)
+    with xla_compiles() as compiled:
+        first = train(config, seed=0, show_progress=False)
+        second = train(config, seed=1, show_progress=False)
+        train(dataclasses.replace(config, iterations=3), seed=0, show_progress=False)
     assert reinforce._program.cache_info().misses == 1
-    assert reinforce.compiled_program(config).iterate._cache_size() == 1
+    assert compiled.count("jit(_iterate_stacked)") == 1
     assert not np.array_equal(first.metrics.mean_return, second.metrics.mean_return) or \
         not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first.policy_params), jax.tree.leaves(second.policy_params)))
 
@@ -324,10 +326,14 @@ def test_a_failing_run_raises_instead_of_hanging():
     config = TrainConfig(iterations=3, episodes=2, max_steps=10)
     program = reinforce.compiled_program(config)
 
-    def failing(train_state, hyperparams, count):
-        raise RuntimeError("device lost")
+    class Failing:  # an iteration that fails when it is called, as on a lost device
+        def prepare(self, *args):
+            return None
+
+        def __call__(self, train_state, hyperparams, count):
+            raise RuntimeError("device lost")
 
     hyperparams = jax.tree.map(lambda v: np.full(300, v, np.float32), config.hyperparams)
     with pytest.raises(RuntimeError, match="device lost"):
-        reinforce.run(program._replace(iterate=failing), config.iterations,
+        reinforce.run(program._replace(iterate=Failing()), config.iterations,
                       [(reinforce.run_keys(np.arange(300)), hyperparams)], lambda *_: None)
