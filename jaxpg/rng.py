@@ -17,22 +17,32 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
 
 
 def _threefry2x32(key, hi, lo):
-    """Threefry-2x32 with 20 rounds of the counters (hi, lo) under `key` `[2]`; two uint32 arrays."""
+    """Threefry-2x32 with 20 rounds of the counters (hi, lo) under `key` `[2]`; two uint32 arrays.
+
+    The rounds are written in `lax` operations, which JAX traces faster than their `jnp` forms.
+    """
     ks = (key[0], key[1], key[0] ^ key[1] ^ np.uint32(0x1BD11BDA))
     x0, x1 = hi + ks[0], lo + ks[1]
+    ks = [jnp.broadcast_to(k, x0.shape) for k in ks]
     for i in range(5):
         for r in _ROTATIONS[i % 2]:
-            x0 = x0 + x1
-            x1 = (x1 << np.uint32(r)) | (x1 >> np.uint32(32 - r))
-            x1 = x0 ^ x1
-        x0 = x0 + ks[(i + 1) % 3]
-        x1 = x1 + ks[(i + 2) % 3] + np.uint32(i + 1)
+            x0 = lax.add(x0, x1)
+            x1 = lax.bitwise_xor(x0, _rotate_left(x1, r))
+        x0 = lax.add(x0, ks[(i + 1) % 3])
+        x1 = lax.add(lax.add(x1, ks[(i + 2) % 3]), np.uint32(i + 1))
     return x0, x1
+
+
+def _rotate_left(x, r):
+    """The bits of uint32 `x` rotated left by `r`."""
+    return lax.bitwise_or(lax.shift_left(x, np.uint32(r)),
+                          lax.shift_right_logical(x, np.uint32(32 - r)))
 
 
 def _key_words(key):
@@ -64,7 +74,7 @@ def _counters(shape, runs, repeat=None):
         raise ValueError(f"shape: at most 2**32 - 1 numbers per draw, got {shape}")
     repeats = _repeats(shape, repeat)
     if repeats is None:
-        lo = jax.lax.iota(jnp.uint32, math.prod(shape)).reshape(shape)
+        lo = lax.iota(jnp.uint32, math.prod(shape)).reshape(shape)
     else:
         lo = np.arange(math.prod(shape), dtype=np.uint32).reshape(shape)
         lo = jnp.asarray(np.take(lo, repeats[1], axis=repeats[0]))
@@ -102,7 +112,7 @@ def uniform(key, shape, minval=0.0, maxval=1.0, dtype=None, repeat=None):
         repeats = _repeats(shape, repeat)
         return draws if repeats is None else jnp.take(draws, repeats[1], axis=repeats[0])
     mantissa = bits(key, shape, repeat) >> np.uint32(32 - 23)
-    floats = jax.lax.bitcast_convert_type(mantissa | np.uint32(0x3F800000), jnp.float32) - 1.0
+    floats = lax.bitcast_convert_type(mantissa | np.uint32(0x3F800000), jnp.float32) - 1.0
     minval = jnp.asarray(minval, jnp.float32)
     maxval = jnp.asarray(maxval, jnp.float32)
     return jnp.maximum(minval, floats * (maxval - minval) + minval)
@@ -114,4 +124,4 @@ def split(key, num=2):
     words = _key_words(key)
     x0, x1 = _threefry2x32(words, *_counters((num,), words.shape[1:]))
     # Kept whole: otherwise XLA recomputes the hash inside every draw that uses one of the keys.
-    return jax.lax.optimization_barrier(jnp.stack([x0, x1], axis=-1))
+    return lax.optimization_barrier(jnp.stack([x0, x1], axis=-1))
