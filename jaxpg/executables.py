@@ -136,14 +136,20 @@ class Stored:
 
     def __call__(self, *args):
         leaves, tree = jax.tree.flatten(args)
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in leaves) or not (
-                self._programs or _in_use()):
-            return self._jitted(*args)
+        if not (self._programs or _in_use()) or any(
+                isinstance(leaf, jax.core.Tracer) or not hasattr(leaf, "dtype") for leaf in leaves):
+            return self._jitted(*args)  # (Python numbers among the arguments: the jitted function's)
         signature = self._signature(tree, leaves)
-        with self._lock:  # one thread compiles; the others wait for its program
-            program = self._programs.get(signature)
-            if program is None and signature[0] is not None:
-                program = self._programs[signature] = self._start(args, signature, ahead=False)
+        program = self._programs.get(signature)
+        if program is None or _failed(program):
+            with self._lock:  # one thread compiles; the others wait for its program
+                program = self._programs.get(signature)
+                if program is None or _failed(program):  # a failure may have passed: again
+                    self._programs.pop(signature, None)
+                    program = None
+                    if signature[0] is not None:
+                        program = self._programs[signature] = self._start(
+                            args, signature, ahead=False)
         return (self._jitted if program is None else program.result())(*args)
 
     def prepare(self, *args):
@@ -158,7 +164,7 @@ class Stored:
         signature = self._signature(tree, leaves)
         with self._lock:
             program = self._programs.get(signature)
-            if program is None:
+            if program is None or _failed(program):
                 program = self._programs[signature] = self._start(args, signature, ahead=True)
         return program
 
@@ -231,8 +237,13 @@ class Stored:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             results.atomic_write(path, pickle.dumps(serialize_executable.serialize(compiled)))
-        except (OSError, ValueError) as error:
+        except Exception as error:  # the program is compiled all the same
             logger.warning("could not keep %s in %s (%s)", self._name, path.parent, error)
+
+
+def _failed(program):
+    """Whether the Future `program` ended in an error."""
+    return program.done() and program.exception() is not None
 
 
 def _device(signature):

@@ -184,7 +184,7 @@ def flatten(policy_params, network):
 def flat_pieces(policy_params, network):
     """`flatten`'s vector in the pieces it concatenates, one per parameter array `[P_i, *runs]`
     (their shapes unchecked)."""
-    shapes, tree = _shape_leaves(network)
+    shapes, _ = _shape_leaves(network)
     leaves = jax.tree.leaves(policy_params)
     return [leaf.reshape(math.prod(shape), *leaf.shape[len(shape):])
             for leaf, shape in zip(leaves, shapes)]

@@ -176,7 +176,7 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     in time order, and the E episodes are summed at the end in a fixed order: a run rounds the
     same alone as in a sweep. A loop step is a few multiply-adds on one small accumulator of every
     total `[P + 1, E, R]`, few enough kernels for XLA to run them one after another rather than
-    schedule them as a graph (the iteration of a run alone compiles 81 kernels, against 92 with an
+    schedule them as a graph (the iteration of a run alone compiles 85 kernels, against 92 with an
     accumulator per parameter array). A run alone has no run axis, so XLA vectorises the loop over
     its episodes: they are padded with episodes of no alive step (all zeros) to whole vectors of
     `rollout.LANES`, which made 1 seed train about 40 % sooner. With finite parameters the padding
@@ -198,9 +198,10 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     terms, inputs, cotangents = _step_signals(policy_params, network, transitions, weights)
 
     # Every total summed over time per episode, in one array `[P + 1, E, ...]`: the gradient's in
-    # `policies.flatten` order, then the loss's. A run alone adds a step's shares as one vector, in
-    # one kernel; runs side by side add them piece by piece in place, which XLA runs faster on
-    # their wider arrays. Steps after every episode ended weigh nothing.
+    # `policies.flatten` order, then the loss's, each piece added in place. (Added as one
+    # concatenated vector, a run alone compiled 4 kernels fewer but rounded its products otherwise
+    # than runs side by side, with three hidden layers or more.) Steps after every episode ended
+    # weigh nothing.
     def add_step(t, totals):
         def at(array, axis):
             return jax.lax.dynamic_index_in_dim(array, t, axis, keepdims=False)
@@ -208,8 +209,6 @@ def loss_and_grad(policy_params, network, transitions, advantages):
         shares = {f"Dense_{i}": {"kernel": at(x, 1)[:, None] * at(d, 1)[None], "bias": at(d, 1)}
                   for i, (x, d) in enumerate(zip(inputs, cotangents))}
         pieces = [*policies.flat_pieces({"params": shares}, network), at(terms, 0)[None]]
-        if alone:
-            return totals + jnp.concatenate(pieces)
         start = 0
         for piece in pieces:
             added = jax.lax.slice_in_dim(totals, start, start + len(piece)) + piece

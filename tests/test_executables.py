@@ -23,6 +23,11 @@ def _train(seeds, place=lambda leaf: leaf):
     return result
 
 
+def _one_run_inputs(seed):
+    keys = reinforce.run_keys([seed])
+    return keys, jax.tree.map(lambda v: np.full(1, v, np.float32), CONFIG.hyperparams)
+
+
 def _new_process():
     """Forgets every program this process holds, as a new process would start."""
     reinforce._program.cache_clear()
@@ -117,11 +122,37 @@ def test_each_program_is_compiled_once_ahead_of_its_calls(kept, placed, tmp_path
 def test_a_call_waits_for_the_program_being_compiled_ahead():
     _new_process()
     program = reinforce.compiled_program(CONFIG)
-    keys = reinforce.run_keys([8])
-    hyperparams = jax.tree.map(lambda v: np.full(1, v, np.float32), CONFIG.hyperparams)
+    keys, hyperparams = _one_run_inputs(8)
     with xla_compiles() as compiled:
         future = program.init.prepare(keys, hyperparams)
         state = program.init(keys, hyperparams)
     assert compiled == ["jit(init_runs)"]
     assert future.done()
     chex.assert_trees_all_equal(state, program.init._jitted(keys, hyperparams))
+
+
+def test_a_failed_compile_is_tried_again_at_the_next_call(store, monkeypatch):
+    compile_now, failures = jax.stages.Lowered.compile, []
+
+    def fail_once(lowered, *args, **kwargs):
+        if not failures:
+            failures.append(lowered)
+            raise RuntimeError("out of memory, once")
+        return compile_now(lowered, *args, **kwargs)
+
+    monkeypatch.setattr(jax.stages.Lowered, "compile", fail_once)
+    program, args = reinforce.compiled_program(CONFIG), _one_run_inputs(9)
+    program.init.prepare(*args)
+    with pytest.raises(RuntimeError, match="once"):
+        program.init(*args)
+    chex.assert_trees_all_equal(program.init(*args), program.init._jitted(*args))
+    assert [p.name.split("-")[0] for p in store.iterdir()] == ["init"]
+
+
+def test_python_numbers_among_the_arguments_call_the_jitted_function():
+    _new_process()
+    program, args = reinforce.compiled_program(CONFIG), _one_run_inputs(10)
+    reinforce.run(program, CONFIG.iterations, [args])  # its programs are prepared
+    state = program.init(*args)
+    _, metrics = program.iterate(state, args[1], 2)
+    assert np.asarray(metrics).shape[:2] == (reinforce.ITERATIONS_PER_CALL, len(reinforce.Metrics._fields))

@@ -66,37 +66,56 @@ def test_gradient_equals_the_books_algorithm():
     _assert_accumulated_equals_autodiff(policy_params, network, transitions, advantages)
 
 
+def _runs_side_by_side(config, num_runs, seed):
+    """(network, policy_params, transitions, advantages) of `num_runs` runs played side by side
+    (on the trailing axis)."""
+    network = config.network
+    keys = jax.random.split(jax.random.PRNGKey(seed), num_runs)
+    policy_params = jax.vmap(lambda k: policies.init_network(k, network), out_axes=-1)(keys)
+    transitions = rollout.rollout(keys, policies.network_policy(network, policy_params),
+                                  config.env_params, config.episodes, config.max_steps).transitions
+    advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
+    return network, policy_params, transitions, advantages
+
+
+def _one_run(r, keep_axis, policy_params, transitions, advantages):
+    """Run r's parameters, transitions and advantages (observations keep their last axis)."""
+    index = slice(r, r + 1) if keep_axis else r
+    pick = functools.partial(jax.tree.map, lambda leaf: leaf[..., index])
+    mine = pick(transitions._replace(obs=None))._replace(obs=transitions.obs[..., index, :])
+    return pick(policy_params), mine, pick(advantages)
+
+
 def test_accumulated_gradient_of_runs_side_by_side():
     """Three runs on the trailing axis, 25 steps (a padded last chunk): each run's loss and gradient
     are those of `reinforce_loss`, and bit for bit those it gets alone."""
-    config = TrainConfig(episodes=3, max_steps=25)
-    network, num_runs = config.network, 3
-    keys = jax.random.split(jax.random.PRNGKey(5), num_runs)
-    policy_params = jax.vmap(lambda k: policies.init_network(k, network), out_axes=-1)(keys)
-    episodes = rollout.rollout(keys, policies.network_policy(network, policy_params),
-                               config.env_params, config.episodes, config.max_steps)
-    transitions = episodes.transitions
-    lengths = np.asarray(episodes.lengths)
+    network, *played = _runs_side_by_side(TrainConfig(episodes=3, max_steps=25), 3, 5)
+    lengths = np.asarray(played[1].alive.sum(axis=0))
     assert lengths.min() < 25 and lengths.max() > 5  # some episodes end, some last
-    advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
-    loss, grads = reinforce.loss_and_grad(policy_params, network, transitions, advantages)
-
-    def run(r, keep_axis):
-        """Run r's parameters, transitions and advantages (observations keep their last axis)."""
-        index = slice(r, r + 1) if keep_axis else r
-        pick = functools.partial(jax.tree.map, lambda leaf: leaf[..., index])
-        mine = pick(transitions._replace(obs=None))._replace(obs=transitions.obs[..., index, :])
-        return pick(policy_params), mine, pick(advantages)
-
-    for r in range(num_runs):
-        params, mine, weights = run(r, keep_axis=True)
+    loss, grads = reinforce.loss_and_grad(played[0], network, *played[1:])
+    for r in range(3):
+        params, mine, weights = _one_run(r, True, *played)
         alone = reinforce.loss_and_grad(params, network, mine, weights)
         chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., r : r + 1],
                                                         (loss, grads)))
-        params, mine, weights = run(r, keep_axis=False)
+        params, mine, weights = _one_run(r, False, *played)
         expected = jax.value_and_grad(reinforce.reinforce_loss)(params, network, mine, weights)
         chex.assert_trees_all_close(jax.tree.map(lambda leaf: leaf[..., 0], alone), expected,
                                     rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("hidden", [(5,), (4, 4, 4)])
+def test_compiled_gradient_of_a_run_alone_is_its_gradient_beside_others(hidden):
+    """As training compiles it: XLA fuses a run alone's additions otherwise than runs side by side,
+    and only a compiled program shows whether they round alike (a run alone adding a step's shares
+    as one vector rounded otherwise with three hidden layers)."""
+    network, *played = _runs_side_by_side(TrainConfig(episodes=10, max_steps=30, hidden=hidden),
+                                          4, 9)
+    compiled = jax.jit(lambda params, *rest: reinforce.loss_and_grad(params, network, *rest))
+    together = compiled(*played)
+    for r in range(4):
+        chex.assert_trees_all_equal(compiled(*_one_run(r, True, *played)),
+                                    jax.tree.map(lambda leaf: leaf[..., r : r + 1], together))
 
 
 @pytest.mark.parametrize("hidden, activation", [((3, 4), "tanh"), ((7,), "relu")])
