@@ -160,11 +160,6 @@ def parameter_shapes(network):
                        for i, (k, n) in enumerate(zip(sizes[:-1], sizes[1:]))}}
 
 
-def num_parameters(network):
-    """P: how many numbers `flatten` puts in one vector for one run."""
-    return sum(math.prod(shape) for shape in _shape_leaves(network)[0])
-
-
 def _shape_leaves(network):
     return jax.tree.flatten(parameter_shapes(network), is_leaf=lambda x: isinstance(x, tuple))
 
@@ -178,16 +173,8 @@ def flatten(policy_params, network):
             leaf.shape[:len(shape)] != shape for leaf, shape in zip(leaves, shapes)):
         raise ValueError(f"policy_params: expected the parameters of hidden={network.hidden}, "
                          f"shaped {parameter_shapes(network)} before any run axes")
-    return jnp.concatenate(flat_pieces(policy_params, network))
-
-
-def flat_pieces(policy_params, network):
-    """`flatten`'s vector in the pieces it concatenates, one per parameter array `[P_i, *runs]`
-    (their shapes unchecked)."""
-    shapes, _ = _shape_leaves(network)
-    leaves = jax.tree.leaves(policy_params)
-    return [leaf.reshape(math.prod(shape), *leaf.shape[len(shape):])
-            for leaf, shape in zip(leaves, shapes)]
+    return jnp.concatenate([leaf.reshape(math.prod(shape), *leaf.shape[len(shape):])
+                            for leaf, shape in zip(leaves, shapes)])
 
 
 def unflatten(flat, network):

@@ -174,11 +174,10 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     (the cotangents as the gradient with respect to zero offsets on each layer's output). A loop
     up to the last step that any episode is alive in then adds the outer products up per episode,
     in time order, and the E episodes are summed at the end in a fixed order: a run rounds the
-    same alone as in a sweep. A loop step is a few multiply-adds on one small accumulator of every
-    total `[P + 1, E, R]`, few enough kernels for XLA to run them one after another rather than
-    schedule them as a graph (the iteration of a run alone compiles 85 kernels, against 92 with an
-    accumulator per parameter array). A run alone has no run axis, so XLA vectorises the loop over
-    its episodes: they are padded with episodes of no alive step (all zeros) to whole vectors of
+    same alone as in a sweep. A loop step is a few multiply-adds on small accumulators
+    `[K, N, E, R]`, few enough kernels for XLA to run them one after another rather than schedule
+    them as a graph. A run alone has no run axis, so XLA vectorises the loop over its episodes:
+    they are padded with episodes of no alive step (all zeros) to whole vectors of
     `rollout.LANES`, which made 1 seed train about 40 % sooner. With finite parameters the padding
     changes no sum: a padded episode's totals stay +0 (a total, starting at +0, is never -0, so
     adding zeros keeps it), `sums.invariant_sum` pads the episode axis with zeros anyway, and the
@@ -195,36 +194,39 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     if alone:
         transitions, advantages = _padded_episodes(transitions, advantages, rollout.LANES)
     weights = jnp.where(transitions.alive, advantages, 0.0)
+    layers = policy_params["params"]
+    names = [f"Dense_{i}" for i in range(len(layers))]
     terms, inputs, cotangents = _step_signals(policy_params, network, transitions, weights)
+    # A run alone's signals come without its run axes, which its totals get back at the end.
+    runs = 0 if alone else len(run_shape)
 
-    # Every total summed over time per episode, in one array `[P + 1, E, ...]`: the gradient's in
-    # `policies.flatten` order, then the loss's, each piece added in place. (Added as one
-    # concatenated vector, a run alone compiled 4 kernels fewer but rounded its products otherwise
-    # than runs side by side, with three hidden layers or more.) Steps after every episode ended
-    # weigh nothing.
+    # Summed over time per episode; steps after every episode ended weigh nothing.
     def add_step(t, totals):
         def at(array, axis):
             return jax.lax.dynamic_index_in_dim(array, t, axis, keepdims=False)
 
-        shares = {f"Dense_{i}": {"kernel": at(x, 1)[:, None] * at(d, 1)[None], "bias": at(d, 1)}
-                  for i, (x, d) in enumerate(zip(inputs, cotangents))}
-        pieces = [*policies.flat_pieces({"params": shares}, network), at(terms, 0)[None]]
-        start = 0
-        for piece in pieces:
-            added = jax.lax.slice_in_dim(totals, start, start + len(piece)) + piece
-            totals = jax.lax.dynamic_update_slice_in_dim(totals, added, start, 0)
-            start += len(piece)
-        return totals
+        loss_total, layer_totals = totals
+        added = [(kernel + at(x, 1)[:, None] * at(d, 1)[None], bias + at(d, 1))
+                 for (kernel, bias), x, d in zip(layer_totals, inputs, cotangents)]
+        return loss_total + at(terms, 0), added
 
-    num_params = policies.num_parameters(network)
+    episode_shape = terms.shape[1:]
+    zeros = (jnp.zeros(episode_shape, weights.dtype),
+             [(jnp.zeros((x.shape[0], d.shape[0], *episode_shape), weights.dtype),
+               jnp.zeros((d.shape[0], *episode_shape), weights.dtype))
+              for x, d in zip(inputs, cotangents)])
     any_alive = jnp.any(transitions.alive, axis=tuple(range(1, weights.ndim)))  # [T]
     lived = jnp.max(jnp.where(any_alive, np.arange(1, weights.shape[0] + 1), 0))
-    totals = jax.lax.fori_loop(0, lived, add_step,
-                               jnp.zeros((num_params + 1, *terms.shape[1:]), weights.dtype))
-    # Summed over the episodes, per alive step: [P + 1, *run_shape] (a run alone's signals came
-    # without its run axes).
-    totals = -sums.invariant_sum(totals, 1).reshape(num_params + 1, *run_shape) / count
-    return totals[num_params], policies.unflatten(totals[:num_params], network)
+    totals = jax.lax.fori_loop(0, lived, add_step, zeros)
+
+    def over_episodes(total):  # -[..., E, *runs] summed over E, per alive step, [..., *run_shape]
+        total = sums.invariant_sum(total, total.ndim - runs - 1)
+        return -total.reshape(total.shape[:total.ndim - runs] + run_shape) / count
+
+    loss, layer_totals = jax.tree.map(over_episodes, totals)
+    grads = {"params": {name: {"kernel": kernel, "bias": bias}
+                        for name, (kernel, bias) in zip(names, layer_totals)}}
+    return loss, grads
 
 
 def _alone(shape):
