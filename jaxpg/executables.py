@@ -176,11 +176,11 @@ class Stored:
         with self._lock:
             program = self._programs.get(signature)
             if program is None:
-                compiled = self._load(signature)
+                compiled = self._load(_device(signature), self._path(signature))
                 if compiled is None:
                     return None
                 program = self._programs[signature] = _done(compiled)
-        if not program.done() or program.exception() is not None:
+        if not program.done() or _failed(program):
             return None
         return None if program.result() is self._jitted else program.result()
 
@@ -192,12 +192,12 @@ class Stored:
         """The Future of the program for `args`: loaded, or lowered now and compiled (on a thread
         when `ahead`) and kept; the jitted function itself for arguments on several devices, whose
         programs are neither compiled ahead nor kept."""
-        if _device(signature) is None:
+        device, path = _device(signature), self._path(signature)
+        if device is None:
             return _done(self._jitted)
-        compiled = self._load(signature)
+        compiled = self._load(device, path)
         if compiled is not None:
             return _done(compiled)
-        path = self._path(signature)
         lowered = self._jitted.lower(*args)
 
         def compile_and_keep():
@@ -217,9 +217,9 @@ class Stored:
         key = repr((self._name, self._settings, str(tree), arguments, _environment()))
         return directory / f"{self._name}-{hashlib.sha256(key.encode()).hexdigest()[:40]}.pickle"
 
-    def _load(self, signature):
-        """The program kept for `signature`, loaded; None where there is none that loads."""
-        device, path = _device(signature), self._path(signature)
+    def _load(self, device, path):
+        """The program kept in `path` (from `_path`), loaded onto `device`; None where there is
+        none that loads."""
         if device is None or path is None:
             return None
         try:
