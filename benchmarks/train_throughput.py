@@ -17,11 +17,12 @@ Step counts:
   steps (from each block's longest episode in each iteration). The gradient's time loop stops
   there too; its step signals are computed for all steps at once.
 
-Peak RSS is the process's peak so far when each row finishes (rows run in increasing R).
-
-The process runs with the XLA setting of the `jaxpg` command (`jaxpg.flags`), unless XLA_FLAGS
-already passes backend options; XLA's own defaults are measured with `XLA_FLAGS` set to
-`jaxpg.flags.XLA_DEFAULTS`.
+Each R is measured in a process of its own, started afresh, with the XLA setting that the `jaxpg`
+command has for R runs (`jaxpg.flags.configure_xla(runs=R)`: one thread for XLA's CPU client where
+the runs train in one block), unless XLA_FLAGS already passes backend options or PJRT_NPROC is
+set; XLA's own defaults are measured with `XLA_FLAGS` set to `jaxpg.flags.XLA_DEFAULTS`. Its
+compile time is therefore that of a cold process, and its peak RSS that process's peak. The numpy
+trainer runs in the script's own process.
 
     python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
     python benchmarks/train_throughput.py --quick            # a quick check that everything runs
@@ -29,17 +30,18 @@ already passes backend options; XLA's own defaults are measured with `XLA_FLAGS`
 
 import argparse
 import dataclasses
+import json
+import os
+import subprocess
+import sys
 import time
 
 import book_numpy
 import common
-import jax
 import numpy as np
 
 from jaxpg import flags, reinforce, rollout
 from jaxpg.sweep import check_seeds, expand_grid, run_inputs
-
-flags.configure_xla()  # before JAX starts its backends
 
 
 def step_counts(config, num_runs, mean_lengths):
@@ -79,12 +81,20 @@ def compile_programs(program, blocks):
 
 
 def measure_jaxpg(config, num_runs, repeats):
+    """`measure_row` in a fresh process with the `jaxpg` command's setting for `num_runs` runs."""
+    command = [sys.executable, __file__, "--row", str(num_runs),
+               "--iterations", str(config.iterations), "--repeats", str(repeats)]
+    child = subprocess.run(command, stdout=subprocess.PIPE, text=True)
+    if child.returncode:
+        sys.exit(f"the row of R={num_runs} failed (status {child.returncode})")
+    return json.loads(child.stdout)
+
+
+def measure_row(config, num_runs, repeats):
     """Compiles the training of `num_runs` seeds, runs it once, then times `repeats` runs."""
+    flags.configure_xla(runs=num_runs)  # before JAX starts its backends
     # Seeds 0..R-1 under the config's own settings, passed as a sweep passes them.
     keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
-    # Compiled afresh, even where an earlier row had the same size of block.
-    jax.clear_caches()
-    reinforce._program.cache_clear()
     program = reinforce.compiled_program(config)
     parts = [(keys, hyperparams)]
     times = compile_programs(program, reinforce.part_blocks(parts[0]))
@@ -99,7 +109,7 @@ def measure_jaxpg(config, num_runs, repeats):
     return _row("jaxpg", num_runs, config.iterations, timing["median_s"], simulated, padded,
                 np.mean(np.asarray(metrics.mean_return)[:, -1]),
                 times_s=timing["times_s"], skipped_fraction=skipped,
-                **times)
+                xla_cpu_threads=os.environ.get(flags.THREADS[0], "one per core"), **times)
 
 
 def measure_book(config, iterations, env_id):
@@ -147,6 +157,7 @@ def parse_args():
                              "fewer are extrapolated); 0 skips it")
     parser.add_argument("--book-env", default="CartPole-v1",
                         help="Gymnasium env id the numpy trainer runs on")
+    parser.add_argument("--row", type=int, help=argparse.SUPPRESS)  # one R, printed as JSON
     args = parser.parse_args()
     if args.quick:
         args.seeds = "1,8"
@@ -163,6 +174,10 @@ def main():
     config = reinforce.TrainConfig()
     if args.iterations:
         config = dataclasses.replace(config, iterations=args.iterations)
+    if args.row is not None:
+        print(json.dumps(measure_row(config, args.row, args.repeats)))
+        return
+    flags.configure_xla()  # the rows' processes inherit it; each adds its own threads
     book_iterations = config.iterations if args.book_iterations is None else args.book_iterations
     common.print_header(f"REINFORCE training throughput: {config}")
 
@@ -176,7 +191,8 @@ def main():
         _print_progress(rows[-1])
 
     columns = ["impl", "n", "iterations", "lower_s", "compile_s", "run_s", "steps_per_s",
-               "padded_steps_per_s", "skipped_fraction", "final_mean_return", "peak_rss_mib"]
+               "padded_steps_per_s", "skipped_fraction", "final_mean_return", "peak_rss_mib",
+               "xla_cpu_threads"]
     common.print_table(rows, columns, title="steps/s = simulated steps / run_s (median run)")
     book = [row for row in rows if row["impl"] == "book-numpy"]
     if book and book[0]["extrapolated"]:

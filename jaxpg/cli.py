@@ -349,7 +349,10 @@ def build_parser():
 
 
 def main(argv=None):
-    args = build_parser().parse_args(argv)
+    return _execute(build_parser().parse_args(argv))
+
+
+def _execute(args):
     try:
         return args.handler(args) or 0
     except (ValueError, OSError) as error:
@@ -360,12 +363,23 @@ def main(argv=None):
         return 130
 
 
+def _runs_at_once(args):
+    """How many runs the command trains in this process at most at once; None where it trains
+    none or shares them with other processes."""
+    if args.command in ("train", "reproduce"):
+        return 1
+    if args.command == "sweep" and args.num_processes is None and args.seeds >= 1:
+        return args.seeds * len(args.lr) * len(args.discount)
+    return None
+
+
 def run(argv=None):
     """The installed `jaxpg` command: `main` in a process with jaxpg's XLA setting (`flags`)."""
     from jaxpg import flags
 
-    flags.configure_xla()
-    sys.exit(main(argv))
+    args = build_parser().parse_args(argv)
+    flags.configure_xla(runs=_runs_at_once(args))
+    sys.exit(_execute(args))
 
 
 if __name__ == "__main__":

@@ -83,6 +83,18 @@ def test_bad_input_exits_2_with_one_line(args, word):
     assert len(lines) == 1 and word in lines[0] and "Traceback" not in result.stderr
 
 
+@pytest.mark.parametrize("args, runs", [
+    (["train"], 1),
+    (["reproduce"], 1),
+    (["sweep", "--seeds", "3", "--lr", "0.01,0.02"], 6),
+    (["sweep", "--coordinator", "h:1", "--num-processes", "2", "--process-id", "0"], None),
+    (["evaluate"], None),
+])
+def test_the_command_sizes_xlas_threads_by_the_runs_it_trains_at_once(args, runs):
+    """`run` hands this count to `flags.configure_xla`: one thread for XLA where it is one block."""
+    assert cli._runs_at_once(cli.build_parser().parse_args(args)) == runs
+
+
 def test_out_that_is_a_file_is_refused(tmp_path):
     target = tmp_path / "file"
     target.write_text("keep me")

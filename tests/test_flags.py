@@ -6,8 +6,9 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
-from jaxpg import flags
+from jaxpg import flags, reinforce
 
 CHECK_ALONE = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "check_alone.py"
 
@@ -19,6 +20,8 @@ import numpy as np
 from jaxpg import flags
 if sys.argv[2] == "set":
     flags.configure_xla()
+if sys.argv[2] == "one thread":
+    flags.configure_xla(runs=1)
 from jaxpg import reinforce
 from jaxpg.sweep import check_seeds, expand_grid, run_inputs
 
@@ -49,7 +52,8 @@ jax.block_until_ready(jax.jit(lambda x: jnp.cumsum(x * 2.0 + 1.0))(jnp.arange(37
 
 
 def _run(*args):
-    env = {**os.environ, "XLA_FLAGS": ""}
+    env = {name: value for name, value in os.environ.items() if name not in flags.THREADS}
+    env["XLA_FLAGS"] = ""
     return subprocess.run([sys.executable, "-c", *args], env=env, capture_output=True, text=True)
 
 
@@ -71,6 +75,15 @@ def test_the_setting_trains_bit_for_bit_alike(tmp_path):
     assert tuned.keys() == default.keys()
     for name in tuned:
         np.testing.assert_array_equal(tuned[name], default[name], err_msg=name)
+
+
+def test_one_thread_for_xla_trains_bit_for_bit_alike(tmp_path):
+    """A process whose runs train in one block gives XLA's CPU client one thread: XLA no longer
+    splits kernels over threads, and every parameter and statistic is as with one per core."""
+    one_thread, per_core = _train(tmp_path, "one thread"), _train(tmp_path, "set")
+    assert one_thread.keys() == per_core.keys()
+    for name in one_thread:
+        np.testing.assert_array_equal(one_thread[name], per_core[name], err_msg=name)
 
 
 def test_under_the_setting_seeds_train_alone_as_side_by_side():
@@ -97,6 +110,42 @@ def _optimized_ir_lines(tmp_path, setting):
 
 def test_the_setting_reaches_llvm_which_then_unrolls_no_loops(tmp_path):
     assert _optimized_ir_lines(tmp_path, "set") < 0.75 * _optimized_ir_lines(tmp_path, "default")
+
+
+# Compiles a kernel of a million sines with or without one thread for XLA's CPU client, and prints
+# how many pieces the compiled program splits it into.
+SPLIT = """
+import re, sys
+from jaxpg import flags
+flags.configure_xla(runs=1 if sys.argv[1] == "one thread" else None)
+import jax, jax.numpy as jnp
+text = jax.jit(lambda x: jnp.sin(x) * 2.0).lower(jnp.zeros(2**20)).compile().as_text()
+print(max([int(n) for n in re.findall(r'outer_dimension_partitions":\\["(\\d+)', text)] or [1]))
+"""
+
+
+@pytest.mark.skipif(reinforce.usable_cores() < 2, reason="XLA splits kernels over two cores or more")
+def test_one_thread_reaches_xla_which_then_splits_no_kernel():
+    pieces = {setting: int(_run(SPLIT, setting).stdout) for setting in ("one thread", "per core")}
+    assert pieces["one thread"] == 1 and pieces["per core"] > 1
+
+
+def test_xla_gets_one_thread_where_the_runs_train_in_one_block(monkeypatch):
+    for name in flags.THREADS:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("XLA_FLAGS", "")
+    for runs in (None, 2 * reinforce.CPU_BLOCK + 1):  # nothing trained; several blocks
+        flags.configure_xla(runs=runs)
+        assert flags.THREADS[0] not in os.environ
+    flags.configure_xla(runs=1)
+    assert os.environ[flags.THREADS[0]] == "1"
+    monkeypatch.setenv(flags.THREADS[0], "3")  # the environment's own choice stays
+    flags.configure_xla(runs=1)
+    assert os.environ[flags.THREADS[0]] == "3"
+    monkeypatch.delenv(flags.THREADS[0])
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
+    flags.configure_xla(runs=1)  # devices side by side need threads side by side
+    assert flags.THREADS[0] not in os.environ
 
 
 def test_the_setting_is_added_to_xla_flags_unless_backend_options_are_given(monkeypatch):
