@@ -18,8 +18,8 @@ Step counts:
   there too; its step signals are computed for all steps at once.
 
 Each R is measured in a process of its own, started afresh, with the XLA setting that the `jaxpg`
-command has for R runs (`jaxpg.flags.configure_xla(runs=R)`: one thread for XLA's CPU client where
-the runs train in one block), unless XLA_FLAGS already passes backend options or PJRT_NPROC is
+command has for R runs (`jaxpg.flags.configure_xla(runs=R)`: one thread for XLA's CPU client for
+one run), unless XLA_FLAGS already passes backend options or PJRT_NPROC is
 set; XLA's own defaults are measured with `XLA_FLAGS` set to `jaxpg.flags.XLA_DEFAULTS`. Its
 compile time is therefore that of a cold process, and its peak RSS that process's peak. The numpy
 trainer runs in the script's own process.

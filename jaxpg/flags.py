@@ -7,15 +7,16 @@ same, except the gradient norm, which nothing is computed from: it can differ in
 since LLVM fuses one of its multiplications and additions into one rounding in one code layout and
 not in another.
 
-Second, a process whose runs all train in one block (`reinforce.cpu_blocks`; `jaxpg train` trains
-one run) gives XLA's CPU client one thread (`PJRT_NPROC=1`). The client's pool has one thread per
-core by default, and XLA then splits the larger kernels of a program over them
-(`outer_dimension_partitions` in the compiled HLO: six kernels of the iteration of one seed, such
-as its step signals over 3200 floats), handing a part to another thread each time. One seed
-trained in a median of 0.056 s that way against 0.040 s on one thread (six alternating pairs of
-processes), compiled as fast, bit for bit alike. Blocks side by side are the other way round:
-jaxpg trains them on one thread per core, and with one thread in XLA's pool 64 seeds took 1.08 and
-0.96 s instead of 0.51 and 0.51 s (`benchmarks/results/train_throughput-20261201-2056*.json`).
+Second, a process that trains one run at a time (`jaxpg train`) gives XLA's CPU client one thread
+(`PJRT_NPROC=1`). The client's pool has one thread per core by default, and XLA then splits the
+larger kernels of a program over them (`outer_dimension_partitions` in the compiled HLO: six
+kernels of the iteration of one seed, such as its step signals over 3200 floats), handing a part to
+another thread each time. One seed trained in a median of 0.056 s that way against 0.040 s on one
+thread (six alternating pairs of processes), compiled as fast, bit for bit alike. More runs are the
+other way round. Blocks side by side need a thread each: with one thread in XLA's pool, 64 seeds (two
+blocks of 32) took 1.08 and 0.96 s instead of 0.51 and 0.51 s. And the kernels of a large block
+gain from the split: 63 seeds in one block took 1.94 and 2.01 s on one thread against 1.62 and
+1.73 s (`benchmarks/results/train_throughput-20261201-2056*.json`, `-2145*.json`).
 
 The setting belongs to the whole process: jaxpg applies it to its own command and its training
 benchmark only. Any program can opt in by calling `configure_xla` before JAX computes anything.
@@ -47,19 +48,13 @@ def configure_xla(runs=None):
     """Adds `SETTING` to `XLA_FLAGS`, unless `XLA_FLAGS` already passes backend options.
 
     Args:
-      runs: how many runs the process trains at most at once. Where they train in one block, XLA's
-        CPU client gets one thread, unless the environment sets its threads (`THREADS`) or
-        XLA_FLAGS asks for several CPU devices, which train side by side.
+      runs: how many runs the process trains at most at once. Where that is one, XLA's CPU client
+        gets one thread, unless the environment sets its threads (`THREADS`) or XLA_FLAGS asks for
+        several CPU devices, which train side by side.
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if "--xla_backend_extra_options" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} {SETTING}".strip()
-    if (runs is not None and _one_block(runs) and not any(name in os.environ for name in THREADS)
+    if (runs == 1 and not any(name in os.environ for name in THREADS)
             and "--xla_force_host_platform_device_count" not in flags):
         os.environ[THREADS[0]] = "1"
-
-
-def _one_block(runs):
-    from jaxpg import reinforce  # imports JAX without starting it
-
-    return len(reinforce.cpu_blocks(runs)) == 1

@@ -91,7 +91,7 @@ def test_bad_input_exits_2_with_one_line(args, word):
     (["evaluate"], None),
 ])
 def test_the_command_sizes_xlas_threads_by_the_runs_it_trains_at_once(args, runs):
-    """`run` hands this count to `flags.configure_xla`: one thread for XLA where it is one block."""
+    """`run` hands this count to `flags.configure_xla`: one thread for XLA for one run."""
     assert cli._runs_at_once(cli.build_parser().parse_args(args)) == runs
 
 

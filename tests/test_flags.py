@@ -78,8 +78,9 @@ def test_the_setting_trains_bit_for_bit_alike(tmp_path):
 
 
 def test_one_thread_for_xla_trains_bit_for_bit_alike(tmp_path):
-    """A process whose runs train in one block gives XLA's CPU client one thread: XLA no longer
-    splits kernels over threads, and every parameter and statistic is as with one per core."""
+    """A process that trains one run at a time gives XLA's CPU client one thread: XLA no longer
+    splits kernels over threads, and every parameter and statistic is as with one per core (for
+    one run and, in the same process, three)."""
     one_thread, per_core = _train(tmp_path, "one thread"), _train(tmp_path, "set")
     assert one_thread.keys() == per_core.keys()
     for name in one_thread:
@@ -130,11 +131,11 @@ def test_one_thread_reaches_xla_which_then_splits_no_kernel():
     assert pieces["one thread"] == 1 and pieces["per core"] > 1
 
 
-def test_xla_gets_one_thread_where_the_runs_train_in_one_block(monkeypatch):
+def test_xla_gets_one_thread_for_a_process_that_trains_one_run(monkeypatch):
     for name in flags.THREADS:
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("XLA_FLAGS", "")
-    for runs in (None, 2 * reinforce.CPU_BLOCK + 1):  # nothing trained; several blocks
+    for runs in (None, 2, reinforce.CPU_BLOCK - 1):  # nothing trained; two runs; a large block
         flags.configure_xla(runs=runs)
         assert flags.THREADS[0] not in os.environ
     flags.configure_xla(runs=1)
