@@ -1,8 +1,10 @@
 """Do seeds train alone exactly as side by side? The check to run after any change for speed.
 
 Trains seeds 0..R-1 of the book's settings side by side on one core (in blocks of at most
-`reinforce.CPU_BLOCK` runs), then each seed alone, under the `jaxpg` command's XLA setting, and
-counts the seeds whose parameters or statistics differ in any bit (-0 and +0 differ too).
+`reinforce.CPU_BLOCK` runs), then each seed alone, under the `jaxpg` command's XLA setting (XLA's
+threads one per core for both; the command gives a run alone one thread, which trains bit for bit
+alike: `tests/test_flags.py`), and counts the seeds whose parameters or statistics differ in any
+bit (-0 and +0 differ too).
 Programs of one run and of several are compiled apart, and XLA can round them differently (see
 `jaxpg.flags`): the suite checks 16 seeds, this script as many as asked.
 

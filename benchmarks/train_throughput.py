@@ -19,10 +19,9 @@ Step counts:
 
 Each R is measured in a process of its own, started afresh, with the XLA setting that the `jaxpg`
 command has for R runs (`jaxpg.flags.configure_xla(runs=R)`: one thread for XLA's CPU client for
-one run), unless XLA_FLAGS already passes backend options or PJRT_NPROC is
-set; XLA's own defaults are measured with `XLA_FLAGS` set to `jaxpg.flags.XLA_DEFAULTS`. Its
+one run), unless XLA_FLAGS already passes backend options or PJRT_NPROC (or NPROC) is set; XLA's own defaults are measured with `XLA_FLAGS` set to `jaxpg.flags.XLA_DEFAULTS`. Its
 compile time is therefore that of a cold process, and its peak RSS that process's peak. The numpy
-trainer runs in the script's own process.
+trainer runs in the script's own process, whose peak the file's top-level `peak_rss_mib` is.
 
     python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
     python benchmarks/train_throughput.py --quick            # a quick check that everything runs
@@ -85,9 +84,13 @@ def measure_jaxpg(config, num_runs, repeats):
     command = [sys.executable, __file__, "--row", str(num_runs),
                "--iterations", str(config.iterations), "--repeats", str(repeats)]
     child = subprocess.run(command, stdout=subprocess.PIPE, text=True)
-    if child.returncode:
+    rows = [line[len(ROW):] for line in child.stdout.splitlines() if line.startswith(ROW)]
+    if child.returncode or len(rows) != 1:
         sys.exit(f"the row of R={num_runs} failed (status {child.returncode})")
-    return json.loads(child.stdout)
+    return json.loads(rows[0])
+
+
+ROW = "row: "  # the line of a row's process that holds its measurements, as JSON
 
 
 def measure_row(config, num_runs, repeats):
@@ -109,7 +112,8 @@ def measure_row(config, num_runs, repeats):
     return _row("jaxpg", num_runs, config.iterations, timing["median_s"], simulated, padded,
                 np.mean(np.asarray(metrics.mean_return)[:, -1]),
                 times_s=timing["times_s"], skipped_fraction=skipped,
-                xla_cpu_threads=os.environ.get(flags.THREADS[0], "one per core"), **times)
+                xla_cpu_threads=next((os.environ[name] for name in flags.THREADS
+                                      if name in os.environ), "one per core"), **times)
 
 
 def measure_book(config, iterations, env_id):
@@ -175,7 +179,7 @@ def main():
     if args.iterations:
         config = dataclasses.replace(config, iterations=args.iterations)
     if args.row is not None:
-        print(json.dumps(measure_row(config, args.row, args.repeats)))
+        print(ROW + json.dumps(measure_row(config, args.row, repeats(args, args.row))))
         return
     flags.configure_xla()  # the rows' processes inherit it; each adds its own threads
     book_iterations = config.iterations if args.book_iterations is None else args.book_iterations
@@ -183,8 +187,7 @@ def main():
 
     rows = []
     for num_runs in sorted(args.seeds):
-        repeats = args.repeats or (3 if num_runs <= 64 else 1)
-        rows.append(measure_jaxpg(config, num_runs, repeats))
+        rows.append(measure_jaxpg(config, num_runs, repeats(args, num_runs)))
         _print_progress(rows[-1])
     if book_iterations:
         rows.append(measure_book(config, book_iterations, args.book_env))
@@ -206,6 +209,11 @@ def main():
     path = common.write_results("train_throughput", args, rows, config=dataclasses.asdict(config))
     common.write_chart(rows, path, "REINFORCE training, simulated env steps/s",
                        xlabel="R (seeds trained at once)")
+
+
+def repeats(args, num_runs):
+    """Timed runs of R runs: `--repeats`, or 3 up to 64 seeds and 1 above."""
+    return args.repeats or (3 if num_runs <= 64 else 1)
 
 
 def _print_progress(row):

@@ -16,7 +16,7 @@ thread (six alternating pairs of processes), compiled as fast, bit for bit alike
 other way round. Blocks side by side need a thread each: with one thread in XLA's pool, 64 seeds (two
 blocks of 32) took 1.08 and 0.96 s instead of 0.51 and 0.51 s. And the kernels of a large block
 gain from the split: 63 seeds in one block took 1.94 and 2.01 s on one thread against 1.62 and
-1.73 s (`benchmarks/results/train_throughput-20261201-2056*.json`, `-2145*.json`).
+1.73 s (`benchmarks/results/train_throughput-20261201-2056*.json`, `-214[56]*.json`).
 
 The setting belongs to the whole process: jaxpg applies it to its own command and its training
 benchmark only. Any program can opt in by calling `configure_xla` before JAX computes anything.
@@ -42,6 +42,7 @@ XLA_DEFAULTS = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_thresh
 
 
 THREADS = ("PJRT_NPROC", "NPROC")  # what XLA's CPU client reads for the size of its pool
+CPU_DEVICES = "JAX_NUM_CPU_DEVICES"  # JAX's count of CPU devices (XLA_FLAGS can also set one)
 
 
 def configure_xla(runs=None):
@@ -49,12 +50,13 @@ def configure_xla(runs=None):
 
     Args:
       runs: how many runs the process trains at most at once. Where that is one, XLA's CPU client
-        gets one thread, unless the environment sets its threads (`THREADS`) or XLA_FLAGS asks for
-        several CPU devices, which train side by side.
+        gets one thread, unless the environment sets its threads (`THREADS`) or asks for several
+        CPU devices (`CPU_DEVICES`, or XLA_FLAGS): a sweep pads its runs to a multiple of the
+        devices, whose copies then train side by side.
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if "--xla_backend_extra_options" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} {SETTING}".strip()
-    if (runs == 1 and not any(name in os.environ for name in THREADS)
+    if (runs == 1 and not any(name in os.environ for name in (*THREADS, CPU_DEVICES))
             and "--xla_force_host_platform_device_count" not in flags):
         os.environ[THREADS[0]] = "1"

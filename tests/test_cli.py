@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from jaxpg import checkpoint, cli
+from jaxpg import checkpoint, cli, flags
 
 SMALL = ["--iterations", "3", "--episodes", "2", "--max-steps", "20", "--quiet", "--no-cache"]
 
@@ -86,13 +86,23 @@ def test_bad_input_exits_2_with_one_line(args, word):
 @pytest.mark.parametrize("args, runs", [
     (["train"], 1),
     (["reproduce"], 1),
-    (["sweep", "--seeds", "3", "--lr", "0.01,0.02"], 6),
+    (["sweep", "--seeds", "3", "--lr", "0.01,0.02", "--discount", "0.9,0.95,0.99"], 18),
+    (["sweep", "--seeds", "1"], 1),
     (["sweep", "--coordinator", "h:1", "--num-processes", "2", "--process-id", "0"], None),
     (["evaluate"], None),
 ])
 def test_the_command_sizes_xlas_threads_by_the_runs_it_trains_at_once(args, runs):
     """`run` hands this count to `flags.configure_xla`: one thread for XLA for one run."""
     assert cli._runs_at_once(cli.build_parser().parse_args(args)) == runs
+
+
+def test_the_command_configures_xla_for_its_runs_before_it_runs(monkeypatch):
+    calls = []
+    monkeypatch.setattr(flags, "configure_xla", lambda runs: calls.append(("configure", runs)))
+    monkeypatch.setattr(cli, "_execute", lambda args: calls.append(("execute", args.command)) or 0)
+    with pytest.raises(SystemExit) as exit_:
+        cli.run(["train", "--seed", "1"])
+    assert exit_.value.code == 0 and calls == [("configure", 1), ("execute", "train")]
 
 
 def test_out_that_is_a_file_is_refused(tmp_path):

@@ -127,26 +127,37 @@ print(max([int(n) for n in re.findall(r'outer_dimension_partitions":\\["(\\d+)',
 
 @pytest.mark.skipif(reinforce.usable_cores() < 2, reason="XLA splits kernels over two cores or more")
 def test_one_thread_reaches_xla_which_then_splits_no_kernel():
-    pieces = {setting: int(_run(SPLIT, setting).stdout) for setting in ("one thread", "per core")}
+    pieces = {}
+    for setting in ("one thread", "per core"):
+        result = _run(SPLIT, setting)
+        assert result.returncode == 0, result.stderr
+        pieces[setting] = int(result.stdout)
     assert pieces["one thread"] == 1 and pieces["per core"] > 1
 
 
 def test_xla_gets_one_thread_for_a_process_that_trains_one_run(monkeypatch):
-    for name in flags.THREADS:
-        monkeypatch.delenv(name, raising=False)
+    for name in (*flags.THREADS, flags.CPU_DEVICES):  # absent now, and again after the test
+        monkeypatch.setenv(name, "")
+        monkeypatch.delenv(name)
     monkeypatch.setenv("XLA_FLAGS", "")
     for runs in (None, 2, reinforce.CPU_BLOCK - 1):  # nothing trained; two runs; a large block
         flags.configure_xla(runs=runs)
         assert flags.THREADS[0] not in os.environ
     flags.configure_xla(runs=1)
     assert os.environ[flags.THREADS[0]] == "1"
-    monkeypatch.setenv(flags.THREADS[0], "3")  # the environment's own choice stays
-    flags.configure_xla(runs=1)
-    assert os.environ[flags.THREADS[0]] == "3"
-    monkeypatch.delenv(flags.THREADS[0])
-    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
-    flags.configure_xla(runs=1)  # devices side by side need threads side by side
-    assert flags.THREADS[0] not in os.environ
+    for name in flags.THREADS:  # the environment's own choice stays
+        monkeypatch.delenv(flags.THREADS[0], raising=False)
+        monkeypatch.setenv(name, "3")
+        flags.configure_xla(runs=1)
+        assert os.environ.get(flags.THREADS[0], "3") == "3"
+        monkeypatch.delenv(name)
+    # A sweep's copies of its one run train side by side on several devices, which need threads.
+    for name, value in (("XLA_FLAGS", "--xla_force_host_platform_device_count=2"),
+                        (flags.CPU_DEVICES, "2")):
+        monkeypatch.setenv(name, value)
+        flags.configure_xla(runs=1)
+        assert flags.THREADS[0] not in os.environ
+        monkeypatch.delenv(name)
 
 
 def test_the_setting_is_added_to_xla_flags_unless_backend_options_are_given(monkeypatch):
