@@ -19,9 +19,10 @@ Step counts:
 
 Each R is measured in a process of its own, started afresh, with the XLA setting that the `jaxpg`
 command has for R runs (`jaxpg.flags.configure_xla(runs=R)`: one thread for XLA's CPU client for
-one run), unless XLA_FLAGS already passes backend options or PJRT_NPROC (or NPROC) is set; XLA's own defaults are measured with `XLA_FLAGS` set to `jaxpg.flags.XLA_DEFAULTS`. Its
-compile time is therefore that of a cold process, and its peak RSS that process's peak. The numpy
-trainer runs in the script's own process, whose peak the file's top-level `peak_rss_mib` is.
+one run), unless XLA_FLAGS already passes backend options or PJRT_NPROC (or NPROC) is set; XLA's
+own defaults are measured with `XLA_FLAGS` set to `jaxpg.flags.XLA_DEFAULTS`. Its compile time is
+therefore that of a cold process, and its peak RSS that process's peak. The numpy trainer runs in
+the script's own process, whose peak the file's top-level `peak_rss_mib` is.
 
     python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
     python benchmarks/train_throughput.py --quick            # a quick check that everything runs

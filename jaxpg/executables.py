@@ -142,15 +142,10 @@ class Stored:
         signature = self._signature(tree, leaves)
         program = self._programs.get(signature)
         if program is None or _failed(program):
-            with self._lock:  # one thread compiles; the others wait for its program
-                program = self._programs.get(signature)
-                if program is None or _failed(program):  # a failure may have passed: again
-                    self._programs.pop(signature, None)
-                    program = None
-                    if signature[0] is not None:
-                        program = self._programs[signature] = self._start(
-                            args, signature, ahead=False)
-        return (self._jitted if program is None else program.result())(*args)
+            if signature[0] is None:  # storing is not in use, and nothing usable was prepared
+                return self._jitted(*args)
+            program = self._program(args, signature, ahead=False)
+        return program.result()(*args)
 
     def prepare(self, *args):
         """Starts compiling (or loading) the program for arguments like `args`, and returns the
@@ -161,12 +156,7 @@ class Stored:
         function; another compiles it, so that this one can go on to trace the next.
         """
         leaves, tree = jax.tree.flatten(args)
-        signature = self._signature(tree, leaves)
-        with self._lock:
-            program = self._programs.get(signature)
-            if program is None or _failed(program):
-                program = self._programs[signature] = self._start(args, signature, ahead=True)
-        return program
+        return self._program(args, self._signature(tree, leaves), ahead=True)
 
     def loaded(self, *args):
         """The program for arguments like `args` (as for `prepare`) where it is at hand without
@@ -183,6 +173,16 @@ class Stored:
         if not program.done() or _failed(program):
             return None
         return None if program.result() is self._jitted else program.result()
+
+    def _program(self, args, signature, ahead):
+        """The Future of the program for `signature`: the one at hand, or one started now where
+        there is none or it failed (a failure may have passed: tried again). One thread starts it;
+        the others wait for its program."""
+        with self._lock:
+            program = self._programs.get(signature)
+            if program is None or _failed(program):
+                program = self._programs[signature] = self._start(args, signature, ahead)
+        return program
 
     def _signature(self, tree, leaves):
         return (_directory if _in_use() else None, tree,

@@ -16,16 +16,16 @@ from jaxpg.reinforce import TrainConfig
 CONFIG = TrainConfig(iterations=3, episodes=3, max_steps=20)
 
 
-def _train(seeds, place=lambda leaf: leaf):
+def _inputs(seeds):
+    """(keys, hyperparams) of `seeds` under CONFIG's settings."""
     hyperparams = jax.tree.map(lambda v: np.full(len(seeds), v, np.float32), CONFIG.hyperparams)
-    part = jax.tree.map(place, (reinforce.run_keys(seeds), hyperparams))
+    return reinforce.run_keys(seeds), hyperparams
+
+
+def _train(seeds, place=lambda leaf: leaf):
+    part = jax.tree.map(place, _inputs(seeds))
     (result,) = reinforce.run(reinforce.compiled_program(CONFIG), CONFIG.iterations, [part])
     return result
-
-
-def _one_run_inputs(seed):
-    keys = reinforce.run_keys([seed])
-    return keys, jax.tree.map(lambda v: np.full(1, v, np.float32), CONFIG.hyperparams)
 
 
 def _new_process():
@@ -122,7 +122,7 @@ def test_each_program_is_compiled_once_ahead_of_its_calls(kept, placed, tmp_path
 def test_a_call_waits_for_the_program_being_compiled_ahead():
     _new_process()
     program = reinforce.compiled_program(CONFIG)
-    keys, hyperparams = _one_run_inputs(8)
+    keys, hyperparams = _inputs([8])
     with xla_compiles() as compiled:
         future = program.init.prepare(keys, hyperparams)
         state = program.init(keys, hyperparams)
@@ -141,7 +141,7 @@ def test_a_failed_compile_is_tried_again_at_the_next_call(store, monkeypatch):
         return compile_now(lowered, *args, **kwargs)
 
     monkeypatch.setattr(jax.stages.Lowered, "compile", fail_once)
-    program, args = reinforce.compiled_program(CONFIG), _one_run_inputs(9)
+    program, args = reinforce.compiled_program(CONFIG), _inputs([9])
     program.init.prepare(*args)
     with pytest.raises(RuntimeError, match="once"):
         program.init(*args)
@@ -151,7 +151,7 @@ def test_a_failed_compile_is_tried_again_at_the_next_call(store, monkeypatch):
 
 def test_python_numbers_among_the_arguments_call_the_jitted_function():
     _new_process()
-    program, args = reinforce.compiled_program(CONFIG), _one_run_inputs(10)
+    program, args = reinforce.compiled_program(CONFIG), _inputs([10])
     reinforce.run(program, CONFIG.iterations, [args])  # its programs are prepared
     state = program.init(*args)
     _, metrics = program.iterate(state, args[1], 2)
