@@ -1,13 +1,34 @@
 """The XLA setting of the processes that jaxpg starts: its command and its benchmarks.
 
-Two parts, both read when JAX starts its backends. First, one option of XLA's CPU backend: LLVM
-unrolls no loops. The iteration program compiles 0.2 to 0.3 s sooner, and 8 seeds train in 0.18 to
+Three parts, all read when JAX starts its backends. First, LLVM unrolls no loops (an option of
+XLA's CPU backend). The iteration program compiles 0.2 to 0.3 s sooner, and 8 seeds train in 0.18 to
 0.20 s instead of 0.31 to 0.33 s. The trained parameters and every statistic are bit for bit the
 same, except the gradient norm, which nothing is computed from: it can differ in its last bit,
 since LLVM fuses one of its multiplications and additions into one rounding in one code layout and
 not in another.
 
-Second, a process that trains one run at a time (`jaxpg train`) gives XLA's CPU client one thread
+Second, XLA's CPU backend compiles a `while` loop whose body touches fewer bytes than a threshold
+into one function, with its older IR emitter, rather than kernel by kernel with its fusion emitters
+(a dozen milliseconds of compiling each, whatever their size). At XLA's 1024 bytes that is the
+discounting loop alone; at `WHOLE_LOOP_BYTES`, the rollout's loop over its chunks too, for any
+block of runs a CPU trains (`reinforce.CPU_BLOCK`). The ten-iteration loop and the gradient's loop
+stay kernel by kernel: XLA compiled neither whole at any threshold tried, up to 2**40 bytes. In
+alternating processes, 1 seed compiled in 1.95, 1.85 and 1.82 s instead of 2.38, 1.99 and 2.11 s
+and trained in 0.041, 0.039 and 0.045 s instead of 0.053, 0.041 and 0.048 s; 8 seeds trained in
+0.13 to 0.14 s instead of 0.23 to 0.25 s; 64 to 1024 seeds about as fast. Every seed trains bit for
+bit as before, alone and side by side (1 to 1024 seeds; the book's seeds 0 to 63 alone as in one
+block), and `jaxpg evaluate` reports the same statistics, sooner.
+Only as long as a run alone compiles with XLA's own vector width: with 512-bit vectors
+(`reinforce.TOGETHER_OPTIONS`, which several runs use) its rollout compiled whole rounds some
+episodes differently (8 of the book's seeds 0 to 15 ended elsewhere), as the older emitter can
+round a run axis of one entry differently from two or more, by how LLVM fuses multiplications and
+additions into FMAs. The ten-iteration loop compiled whole, in an earlier version of the program,
+made 17 of seeds 0 to 63 end with other parameters alone. `tests/test_flags.py` trains seeds alone
+and side by side under the setting (`benchmarks/check_alone.py`) to keep it so. A loop over very
+large arrays loses XLA's splitting of kernels over the cores (a stream of 65536 environments ran
+79 M steps/s instead of 105 M); `benchmarks/env_throughput.py` measures XLA's defaults.
+
+Third, a process that trains one run at a time (`jaxpg train`) gives XLA's CPU client one thread
 (`PJRT_NPROC=1`). The client's pool has one thread per core by default, and XLA then splits the
 larger kernels of a program over them (`outer_dimension_partitions` in the compiled HLO: six
 kernels of the iteration of one seed, such as its step signals over 3200 floats), handing a part to
@@ -20,20 +41,14 @@ gain from the split: 63 seeds in one block took 1.94 and 2.01 s on one thread ag
 
 The setting belongs to the whole process: jaxpg applies it to its own command and its training
 benchmark only. Any program can opt in by calling `configure_xla` before JAX computes anything.
-
-Not in the setting: raising `xla_cpu_small_while_loop_byte_threshold`, which compiles the whole
-ten-iteration loop into one function (1 seed 0.041 s instead of 0.057 s). A run alone then rounds
-differently from the same run beside others (17 of the book's seeds 0 to 63 ended with other
-parameters alone, 30 differed in some statistic; `tests/test_flags.py`). Such a loop is emitted by
-XLA's older IR emitter, which rounds a program with a run axis of one entry differently from one
-with two or more, run kernel by kernel too (`xla_cpu_use_fusion_emitters=False`): by how LLVM fuses
-multiplications and additions into FMAs, as far as it was traced.
 """
 
 import os
 
+WHOLE_LOOP_BYTES = 1 << 24  # above the rollout's loop of CPU_BLOCK runs (under 2 MB)
 BACKEND_OPTIONS = {
     "xla_cpu_disable_loop_unrolling": "true",  # XLA reads its presence, whatever the value
+    "xla_cpu_small_while_loop_byte_threshold": str(WHOLE_LOOP_BYTES),
 }
 SETTING = "--xla_backend_extra_options=" + ",".join(
     f"{name}={value}" for name, value in BACKEND_OPTIONS.items())
@@ -50,13 +65,14 @@ def configure_xla(runs=None):
 
     Args:
       runs: how many runs the process trains at most at once. Where that is one, XLA's CPU client
-        gets one thread, unless the environment sets its threads (`THREADS`) or asks for several
-        CPU devices (`CPU_DEVICES`, or XLA_FLAGS): a sweep pads its runs to a multiple of the
-        devices, whose copies then train side by side.
+        gets one thread, unless the environment sets its threads (`THREADS`, to anything but an
+        empty value) or asks for several CPU devices (`CPU_DEVICES`, or XLA_FLAGS): a sweep pads
+        its runs to a multiple of the devices, whose copies then train side by side.
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if "--xla_backend_extra_options" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} {SETTING}".strip()
-    if (runs == 1 and not any(name in os.environ for name in (*THREADS, CPU_DEVICES))
+    # An empty variable is one XLA and JAX ignore: as if unset.
+    if (runs == 1 and not any(os.environ.get(name) for name in (*THREADS, CPU_DEVICES))
             and "--xla_force_host_platform_device_count" not in flags):
         os.environ[THREADS[0]] = "1"

@@ -409,14 +409,14 @@ MEAN_RETURN = Metrics._fields.index("mean_return")
 
 class Program(NamedTuple):
     """The compiled training of R runs at once, for one `TrainConfig`: `executables.Stored`
-    functions, which `run` prepares before it calls them."""
+    functions (by two for `iterate`), which `run` prepares before it calls them."""
 
     network: policies.PolicyNetwork  # whose parameters TrainState.policy_params holds, flat
     init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
     # (TrainState [R], Hyperparams [R], count: int32 scalar) -> (TrainState [R], Metrics' fields
     # stacked [ITERATIONS_PER_CALL, len(Metrics._fields), R]): `count` iterations (at most
     # ITERATIONS_PER_CALL), whose metrics fill the first `count` rows; one array per call.
-    iterate: Callable
+    iterate: Callable  # an `AloneOrTogether`
 
 
 def compiled_program(config):
@@ -432,21 +432,50 @@ def compiled_program(config):
 # Initialising runs once: it is compiled for speed of compilation, not of running, without
 # XLA's CPU fusion emitters (about 0.1 s sooner).
 INIT_OPTIONS = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
-# A CPU with AVX-512 runs the iteration in 512-bit vectors: 1 and 64 seeds train 3 to 6 % faster.
-ITERATE_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
+# The iteration of several runs asks for 512-bit vectors (XLA's default is 256): 1024 seeds trained
+# in 9.5 to 11.3 s instead of 10.9 to 12.5 s. A run alone does not: with its rollout's loop compiled
+# whole (`jaxpg.flags`), 512-bit vectors round some of its episodes differently from the same run's
+# beside others (8 of the book's seeds 0 to 15).
+TOGETHER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
+
+
+class AloneOrTogether(NamedTuple):
+    """One function of a `TrainState` first, as two `executables.Stored` functions compiled with
+    different options: `alone` for a run alone, `together` for several runs. It calls, prepares,
+    lowers or traces the one for its arguments."""
+
+    alone: executables.Stored
+    together: executables.Stored
+
+    def _for(self, train_state):
+        return self.alone if train_state.key.shape[0] == 1 else self.together
+
+    def __call__(self, *args):
+        return self._for(args[0])(*args)
+
+    def prepare(self, *args):
+        return self._for(args[0]).prepare(*args)
+
+    def lower(self, *args):
+        return self._for(args[0]).lower(*args)
+
+    def eval_shape(self, *args):
+        return self._for(args[0]).eval_shape(*args)
 
 
 @functools.lru_cache(maxsize=32)
 def _program(config):
+    def iterate(options):
+        return jax.jit(functools.partial(_iterate_stacked, config), donate_argnums=0,
+                       compiler_options=options)
+
     return Program(
         config.network,
         executables.Stored(
             jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
             "init", config),
-        executables.Stored(
-            jax.jit(functools.partial(_iterate_stacked, config), donate_argnums=0,
-                    compiler_options=ITERATE_OPTIONS),
-            "iterate", config),
+        AloneOrTogether(executables.Stored(iterate(None), "iterate-alone", config),
+                        executables.Stored(iterate(TOGETHER_OPTIONS), "iterate", config)),
     )
 
 

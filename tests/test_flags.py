@@ -88,12 +88,13 @@ def test_one_thread_for_xla_trains_bit_for_bit_alike(tmp_path):
 
 
 def test_under_the_setting_seeds_train_alone_as_side_by_side():
-    """The book's seeds 0 to 15 train alone as in one block, by `benchmarks/check_alone.py`.
+    """The book's seeds 0 to 15 train alone (in a process of one thread, as `jaxpg train`) as in
+    one block, by `benchmarks/check_alone.py`.
 
-    XLA's whole-loop compiling (`xla_cpu_small_while_loop_byte_threshold`) once broke this: 17 of
-    seeds 0 to 63 ended with other parameters alone and 30 differed in some statistic, since the
-    program of a run alone rounded differently from that of several. Runs alone cost little once
-    their program is compiled (8 to 14 s in all).
+    XLA's whole-loop compiling (`xla_cpu_small_while_loop_byte_threshold`, in the setting) breaks
+    this when it takes more than the rollout's loop, or when a run alone asks for 512-bit vectors
+    (`jaxpg.flags`): a program of one run then rounds differently from that of several. Runs alone
+    cost little once their program is compiled (8 to 14 s in all).
     """
     result = subprocess.run([sys.executable, str(CHECK_ALONE), "--seeds", "16"],
                             env={**os.environ, "XLA_FLAGS": ""}, capture_output=True, text=True)
@@ -145,6 +146,12 @@ def test_xla_gets_one_thread_for_a_process_that_trains_one_run(monkeypatch):
         assert flags.THREADS[0] not in os.environ
     flags.configure_xla(runs=1)
     assert os.environ[flags.THREADS[0]] == "1"
+    for name in flags.THREADS:  # an empty variable is no choice: XLA ignores it
+        monkeypatch.setenv(flags.THREADS[0], "")
+        monkeypatch.setenv(name, "")
+        flags.configure_xla(runs=1)
+        assert os.environ[flags.THREADS[0]] == "1"
+        monkeypatch.delenv(name)
     for name in flags.THREADS:  # the environment's own choice stays
         monkeypatch.delenv(flags.THREADS[0], raising=False)
         monkeypatch.setenv(name, "3")
