@@ -1,9 +1,10 @@
 """Do seeds train alone exactly as side by side? The check to run after any change for speed.
 
-Trains seeds 0..R-1 of the book's settings side by side on one core (in blocks of at most
+Trains seeds 0..R-1 of the book's settings side by side in one worker thread (blocks of at most
 `reinforce.CPU_BLOCK` runs), then each seed alone, each under the `jaxpg` command's XLA setting for
 it: the block in this process, with XLA's threads one per core as a sweep has them, and the seeds
-alone in a process of their own that gives XLA one thread, as `jaxpg train` does. It counts the
+alone in a process of their own that gives XLA one thread, as `jaxpg train` does. At least 2 seeds:
+one seed in a block would be a run alone too. It counts the
 seeds whose parameters or statistics differ in any bit (-0 and +0 differ too).
 Programs of one run and of several are compiled apart, and XLA can round them differently (see
 `jaxpg.flags`): the suite checks 16 seeds, this script as many as asked.
@@ -55,7 +56,8 @@ def differing_seeds(num_seeds, iterations):
                                 "--iterations", str(iterations), "--alone", str(path)])
         if child.returncode:
             sys.exit(f"training the seeds alone failed (status {child.returncode})")
-        alone = dict(np.load(path))
+        with np.load(path) as saved:
+            alone = dict(saved)
     flags.configure_xla()  # before JAX starts its backends, as a sweep of many runs
     reinforce.usable_cores = lambda: 1  # blocks as large as they come
     together = train(num_seeds, iterations)
@@ -76,6 +78,8 @@ def main():
     parser.add_argument("--iterations", type=int, default=150, help="(default the book's 150)")
     parser.add_argument("--alone", type=Path, help=argparse.SUPPRESS)  # the seeds-alone process
     args = parser.parse_args()
+    if args.seeds < 2:
+        parser.error(f"--seeds: at least 2 (one seed in a block is a run alone), got {args.seeds}")
     if args.alone:
         return train_alone(args.seeds, args.iterations, args.alone)
     other_params, any_difference = differing_seeds(args.seeds, args.iterations)

@@ -72,7 +72,7 @@ def configure_xla(runs=None):
     flags = os.environ.get("XLA_FLAGS", "")
     if "--xla_backend_extra_options" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} {SETTING}".strip()
-    # An empty variable is one XLA and JAX ignore: as if unset.
+    # An empty PJRT_NPROC or NPROC is one XLA ignores: as if unset.
     if (runs == 1 and not any(os.environ.get(name) for name in (*THREADS, CPU_DEVICES))
             and "--xla_force_host_platform_device_count" not in flags):
         os.environ[THREADS[0]] = "1"

@@ -409,7 +409,7 @@ MEAN_RETURN = Metrics._fields.index("mean_return")
 
 class Program(NamedTuple):
     """The compiled training of R runs at once, for one `TrainConfig`: `executables.Stored`
-    functions (by two for `iterate`), which `run` prepares before it calls them."""
+    functions (`iterate` an `AloneOrTogether` of two), which `run` prepares before it calls them."""
 
     network: policies.PolicyNetwork  # whose parameters TrainState.policy_params holds, flat
     init: Callable  # (keys [R, 2], Hyperparams [R]) -> TrainState [R]
@@ -432,17 +432,18 @@ def compiled_program(config):
 # Initialising runs once: it is compiled for speed of compilation, not of running, without
 # XLA's CPU fusion emitters (about 0.1 s sooner).
 INIT_OPTIONS = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
-# The iteration of several runs asks for 512-bit vectors (XLA's default is 256): 1024 seeds trained
-# in 9.5 to 11.3 s instead of 10.9 to 12.5 s. A run alone does not: with its rollout's loop compiled
-# whole (`jaxpg.flags`), 512-bit vectors round some of its episodes differently from the same run's
-# beside others (8 of the book's seeds 0 to 15).
+# The iteration of a block of several runs asks for 512-bit vectors (XLA's default is 256), for
+# speed: 1024 seeds trained in 9.5 to 11.3 s instead of 10.9 to 12.5 s. A block of one run does
+# not, for its bits: with its rollout's loop compiled whole (`jaxpg.flags`), 512-bit vectors round
+# some of its episodes differently from the same run's beside others (8 of the book's seeds 0 to
+# 15).
 TOGETHER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 
 
 class AloneOrTogether(NamedTuple):
-    """One function of a `TrainState` first, as two `executables.Stored` functions compiled with
-    different options: `alone` for a run alone, `together` for several runs. It calls, prepares,
-    lowers or traces the one for its arguments."""
+    """A function whose first argument is a `TrainState`, as two `executables.Stored` functions
+    compiled with different options: `alone` for a run alone (a block of one run), `together` for
+    several runs. It calls, prepares, lowers or traces the one for its arguments."""
 
     alone: executables.Stored
     together: executables.Stored
@@ -465,7 +466,7 @@ class AloneOrTogether(NamedTuple):
 
 @functools.lru_cache(maxsize=32)
 def _program(config):
-    def iterate(options):
+    def jit_iterate(options):
         return jax.jit(functools.partial(_iterate_stacked, config), donate_argnums=0,
                        compiler_options=options)
 
@@ -474,8 +475,8 @@ def _program(config):
         executables.Stored(
             jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
             "init", config),
-        AloneOrTogether(executables.Stored(iterate(None), "iterate-alone", config),
-                        executables.Stored(iterate(TOGETHER_OPTIONS), "iterate", config)),
+        AloneOrTogether(executables.Stored(jit_iterate(None), "iterate_alone", config),
+                        executables.Stored(jit_iterate(TOGETHER_OPTIONS), "iterate", config)),
     )
 
 

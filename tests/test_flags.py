@@ -94,7 +94,7 @@ def test_under_the_setting_seeds_train_alone_as_side_by_side():
     XLA's whole-loop compiling (`xla_cpu_small_while_loop_byte_threshold`, in the setting) breaks
     this when it takes more than the rollout's loop, or when a run alone asks for 512-bit vectors
     (`jaxpg.flags`): a program of one run then rounds differently from that of several. Runs alone
-    cost little once their program is compiled (8 to 14 s in all).
+    cost little once their program is compiled (about 9 s in all, in two processes).
     """
     result = subprocess.run([sys.executable, str(CHECK_ALONE), "--seeds", "16"],
                             env={**os.environ, "XLA_FLAGS": ""}, capture_output=True, text=True)
