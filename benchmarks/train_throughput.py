@@ -114,7 +114,7 @@ def measure_row(config, num_runs, repeats):
                 np.mean(np.asarray(metrics.mean_return)[:, -1]),
                 times_s=timing["times_s"], skipped_fraction=skipped,
                 xla_cpu_threads=next((os.environ[name] for name in flags.THREADS
-                                      if name in os.environ), "one per core"), **times)
+                                      if os.environ.get(name)), "one per core"), **times)
 
 
 def measure_book(config, iterations, env_id):

@@ -229,6 +229,12 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     return loss, grads
 
 
+def is_run_alone(train_state):
+    """Whether a `TrainState` holds one run (keys `[1, 2]`): `iterate` then plays and computes
+    it without its run axis, and `AloneOrTogether` picks the program compiled for that."""
+    return train_state.key.shape[0] == 1
+
+
 def _alone(shape):
     """Whether `[T, E, *runs]` is a run alone: no run axes, or run axes of one entry."""
     return math.prod(shape[2:]) == 1
@@ -355,7 +361,7 @@ def iterate(config, train_state, hyperparams):
 
     # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
     # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
-    alone = key_rollout.shape[0] == 1
+    alone = is_run_alone(train_state)
     flat = train_state.policy_params[:, 0] if alone else train_state.policy_params
 
     def policy(obs, u):  # parameters taken apart where the rollout's kernels use them
@@ -449,7 +455,7 @@ class AloneOrTogether(NamedTuple):
     together: executables.Stored
 
     def _for(self, train_state):
-        return self.alone if train_state.key.shape[0] == 1 else self.together
+        return self.alone if is_run_alone(train_state) else self.together
 
     def __call__(self, *args):
         return self._for(args[0])(*args)
