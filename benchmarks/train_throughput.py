@@ -55,7 +55,7 @@ def skipped_fraction(config, max_lengths):
     """Share of padded steps in chunks after every episode ended; `max_lengths` `[R, I]`."""
     chunk = min(rollout.CHUNK, config.max_steps)
     computed = 0.0
-    for start, stop in reinforce.cpu_blocks(max_lengths.shape[0]):
+    for start, stop in reinforce.cpu_blocks(max_lengths.shape[0])[0]:
         block = max_lengths[start:stop]
         longest = np.max(block, axis=0)  # a block skips a chunk once all its episodes ended
         steps = np.minimum(np.ceil(longest / chunk) * chunk, config.max_steps)
@@ -101,7 +101,7 @@ def measure_row(config, num_runs, repeats):
     keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
     program = reinforce.compiled_program(config)
     parts = [(keys, hyperparams)]
-    times = compile_programs(program, reinforce.part_blocks(parts[0]))
+    times = compile_programs(program, [block for block, _ in reinforce.part_blocks(parts[0])])
     reinforce.run(program, config.iterations, parts)  # warm-up
     timing, (result,) = common.time_calls(
         reinforce.run, program, config.iterations, parts, repeats=repeats

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-from conftest import xla_compiles
+from conftest import assert_trained_alike, xla_compiles
 
 from jaxpg import TrainConfig, evaluate, policies, reinforce, returns, rollout, train
 
@@ -309,8 +309,8 @@ def test_a_run_trains_the_same_beside_a_thousand_others():
     many = train_runs(np.arange(1030))
     for seed in (0, 7, 1029):
         alone = train_runs([seed])
-        chex.assert_trees_all_equal(jax.tree.map(lambda leaf: leaf[seed], many),
-                                    jax.tree.map(lambda leaf: leaf[0], alone))
+        assert_trained_alike(jax.tree.map(lambda leaf: leaf[seed], many),
+                             jax.tree.map(lambda leaf: leaf[0], alone))
 
 
 def test_blocks_on_several_threads_report_every_iteration_in_order():
@@ -326,19 +326,36 @@ def test_blocks_on_several_threads_report_every_iteration_in_order():
         np.testing.assert_array_equal(means, result.metrics.mean_return[:, iteration])
 
 
-@pytest.mark.parametrize("num_runs", [1, 2, 3, 8, 63, 64, 65, 129, 1030])
+@pytest.mark.parametrize("num_runs", [1, 2, 3, 5, 8, 15, 16, 17, 63, 64, 65, 129, 1030])
 @pytest.mark.parametrize("cores", [1, 2, 3, 16, 256])
-def test_cpu_blocks_cover_the_runs_in_at_most_two_sizes(num_runs, cores, monkeypatch):
+def test_cpu_blocks_cover_the_runs_padded_to_one_size(num_runs, cores, monkeypatch):
     monkeypatch.setattr(reinforce, "usable_cores", lambda: cores)
-    blocks = reinforce.cpu_blocks(num_runs)
+    blocks, size = reinforce.cpu_blocks(num_runs)
     assert blocks[0][0] == 0 and blocks[-1][1] == num_runs
     assert all(stop == start for (_, stop), (start, _) in zip(blocks, blocks[1:]))
     sizes = [stop - start for start, stop in blocks]
-    assert max(sizes) <= reinforce.CPU_BLOCK and max(sizes) - min(sizes) <= 1 and min(sizes) > 0
-    if num_runs > reinforce.CPU_BLOCK:
-        assert len(blocks) % cores == 0 or len(blocks) == num_runs  # every core trains
+    assert max(sizes) - min(sizes) <= 1 and min(sizes) > 0 and max(sizes) <= size
+    if num_runs <= reinforce.ALONE_PER_CORE * cores:
+        assert size == 1 and len(blocks) == num_runs
     else:
-        assert len(blocks) == (cores if num_runs % cores == 0 else 1)
+        assert size in (4, 8, 16) and size < 2 * max(sizes) and size <= reinforce.CPU_BLOCK
+        assert len(blocks) % cores == 0  # every core trains
+
+
+def test_blocks_padded_with_copies_train_their_runs_as_alone():
+    config = TrainConfig(iterations=3, episodes=3, max_steps=30)
+    blocks, size = reinforce.cpu_blocks(5)
+    assert size > max(stop - start for start, stop in blocks)  # copies in every block
+    hyperparams = reinforce.Hyperparams(np.linspace(0.005, 0.02, 5, dtype=np.float32),
+                                        np.full(5, 0.95, np.float32))
+    part = (reinforce.run_keys(np.arange(5)), hyperparams)
+    program = reinforce.compiled_program(config)
+    (together,) = reinforce.run(program, config.iterations, [part])
+    for run in range(5):
+        (alone,) = reinforce.run(program, config.iterations,
+                                 [jax.tree.map(lambda leaf: leaf[run:run + 1], part)])
+        assert_trained_alike(jax.tree.map(lambda leaf: leaf[run], together),
+                             jax.tree.map(lambda leaf: leaf[0], alone))
 
 
 def test_a_failing_run_raises_instead_of_hanging():

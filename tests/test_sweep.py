@@ -2,11 +2,10 @@
 
 import importlib
 
-import chex
 import jax
 import numpy as np
 import pytest
-from conftest import SMALL_CONFIG, SMALL_GRID, SMALL_SEEDS, xla_compiles
+from conftest import SMALL_CONFIG, SMALL_GRID, SMALL_SEEDS, assert_trained_alike, xla_compiles
 
 from jaxpg import TrainConfig, reinforce, train
 from jaxpg.sweep import chunk_size, device_bytes, fitting_chunk_size, summarize, sweep
@@ -25,9 +24,9 @@ def test_sixty_four_seeds_learn(book_sweep):
 @pytest.mark.parametrize("seed", [0, 37, 63])
 def test_seed_in_sweep_equals_seed_alone(book_sweep, seed):
     alone = train(TrainConfig(), seed=seed, show_progress=False)
-    chex.assert_trees_all_equal(jax.tree.map(lambda a: a[0, seed], book_sweep.metrics), alone.metrics)
-    chex.assert_trees_all_equal(jax.tree.map(lambda a: a[0, seed], book_sweep.policy_params),
-                                alone.policy_params)
+    assert_trained_alike(jax.tree.map(lambda a: a[0, seed], (book_sweep.metrics,
+                                                             book_sweep.policy_params)),
+                         (alone.metrics, alone.policy_params))
 
 
 def test_grid_runs_every_setting_and_matches_train():
@@ -39,7 +38,7 @@ def test_grid_runs_every_setting_and_matches_train():
     assert swept.metrics.loss.shape == (4, 2, 20)
     alone = train(TrainConfig(iterations=20, learning_rate=0.01, discount=0.9), seed=6,
                   show_progress=False)
-    chex.assert_trees_all_equal(jax.tree.map(lambda a: a[2, 1], swept.metrics), alone.metrics)
+    assert_trained_alike(jax.tree.map(lambda a: a[2, 1], swept.metrics), alone.metrics)
 
 
 def test_chunked_sweep_equals_one_chunk_and_compiles_once(small_sweep, capsys):
@@ -48,7 +47,7 @@ def test_chunked_sweep_equals_one_chunk_and_compiles_once(small_sweep, capsys):
     with xla_compiles() as compiled:
         chunked = sweep(SMALL_CONFIG, SMALL_SEEDS, SMALL_GRID, memory_budget=budget)
     assert compiled.count("jit(_iterate_stacked)") == 1
-    chex.assert_trees_all_equal(chunked, small_sweep)
+    assert_trained_alike(chunked, small_sweep)
     # Ten runs, three at a time: the last chunk is run 10 and two copies of it.
     last_lines = [line for line in capsys.readouterr().err.splitlines() if "Iteration: 3/3" in line]
     assert [line.split(":")[0] for line in last_lines] == [
