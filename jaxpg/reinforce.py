@@ -525,8 +525,8 @@ def cpu_blocks(num_runs):
     most `CPU_BLOCK` runs whose sizes differ by at most one, as many as a multiple of the usable
     cores, so that every core trains and all finish together, padded to a whole vector of floats:
     4, 8 or 16 runs. XLA vectorises over the runs in whole vectors and loops over the rest one by
-    one: a block of 15 runs trained three times as long as one of 16, 3 runs as long as 8. One
-    size, one program to compile.
+    one: a block of 15 runs trained three times as long as one of 16, of 3 runs twice as long as
+    one of 8. One size, one program to compile.
     """
     cores = usable_cores()
     if num_runs <= ALONE_PER_CORE * cores:
