@@ -1,13 +1,14 @@
 """Do seeds train alone exactly as side by side? The check to run after any change for speed.
 
 Trains seeds 0..R-1 of the book's settings side by side in one worker thread (blocks of at most
-`reinforce.CPU_BLOCK` runs), then each seed alone, each under the `jaxpg` command's XLA setting for
-it: the block in this process, with XLA's threads one per core as a sweep has them, and the seeds
-alone in a process of their own that gives XLA one thread, as `jaxpg train` does. At least 2 seeds:
-one seed in a block would be a run alone too. It counts the
-seeds whose parameters or statistics differ in any bit (-0 and +0 differ too).
-Programs of one run and of several are compiled apart, and XLA can round them differently (see
-`jaxpg.flags`): the suite checks 16 seeds, this script as many as asked.
+`reinforce.CPU_BLOCK` runs, padded with copies to a whole vector: `reinforce.cpu_blocks`), then
+each seed alone, each under the `jaxpg` command's XLA setting for it: the blocks in this process,
+with XLA's threads one per core as a sweep has them, and the seeds alone in a process of their own
+that gives XLA one thread, as `jaxpg train` does. At least `reinforce.ALONE_PER_CORE + 1` seeds:
+fewer would train alone in the blocks' process too. It counts the seeds whose parameters or
+statistics differ in any bit (-0 and +0 differ too). Programs of one run and of several are
+compiled apart, and XLA can round them differently (see `jaxpg.flags`): the suite checks 21 seeds
+(two blocks padded to 16), this script as many as asked.
 
     python benchmarks/check_alone.py                 # seeds 0 to 63; about 20 s
     python benchmarks/check_alone.py --seeds 4 --iterations 10
@@ -59,7 +60,7 @@ def differing_seeds(num_seeds, iterations):
         with np.load(path) as saved:
             alone = dict(saved)
     flags.configure_xla()  # before JAX starts its backends, as a sweep of many runs
-    reinforce.usable_cores = lambda: 1  # blocks as large as they come
+    reinforce.usable_cores = lambda: 1  # one thread trains the blocks: none of the seeds alone
     together = train(num_seeds, iterations)
     other_params, any_difference = [], []
     for seed in range(num_seeds):
@@ -78,8 +79,10 @@ def main():
     parser.add_argument("--iterations", type=int, default=150, help="(default the book's 150)")
     parser.add_argument("--alone", type=Path, help=argparse.SUPPRESS)  # the seeds-alone process
     args = parser.parse_args()
-    if args.seeds < 2:
-        parser.error(f"--seeds: at least 2 (one seed in a block is a run alone), got {args.seeds}")
+    fewest = reinforce.ALONE_PER_CORE + 1  # on the one core it gives the block, fewer train alone
+    if args.seeds < fewest:
+        parser.error(f"--seeds: at least {fewest} (fewer seeds would train alone in the block's "
+                     f"process too), got {args.seeds}")
     if args.alone:
         return train_alone(args.seeds, args.iterations, args.alone)
     other_params, any_difference = differing_seeds(args.seeds, args.iterations)

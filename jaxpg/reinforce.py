@@ -533,17 +533,19 @@ def cpu_blocks(num_runs):
         return [(run, run + 1) for run in range(num_runs)], 1
     num_blocks = -(-num_runs // (CPU_BLOCK * cores)) * cores
     bounds = [i * num_runs // num_blocks for i in range(num_blocks + 1)]
-    size = max(4, 1 << (-(-num_runs // num_blocks) - 1).bit_length())
+    largest = -(-num_runs // num_blocks)
+    size = max(4, 1 << (largest - 1).bit_length())
     return list(zip(bounds[:-1], bounds[1:])), size
 
 
 def run(program, iterations, parts, on_iteration=None):
     """Trains each part's runs for `iterations` iterations, every part on its own device.
 
-    On a CPU a part trains in `cpu_blocks`, spread over one thread per core: larger arrays no
-    longer fit in the caches, and XLA runs such small programs on the thread that calls them. Runs
-    train alike in any batch, so the blocks and their copies of runs change nothing in the
-    results. The programs for every size of block are compiled first, side by side (`prepare`).
+    On a CPU a part trains in `cpu_blocks`, spread over one thread per core: XLA runs such small
+    programs on the thread that calls them, and a small block stops its rollout as soon as its own
+    episodes have ended. Runs train alike in any batch, so the blocks and their copies of runs
+    change nothing in the results. The programs of every part's blocks are compiled first, side
+    by side (`prepare`).
 
     Args:
       program: from `compiled_program`.
@@ -555,12 +557,12 @@ def run(program, iterations, parts, on_iteration=None):
     Returns:
       One `TrainResult` per part, with numpy leaves `[R_p, ...]` and metrics `[R_p, iterations]`.
     """
-    blocks, owners, sizes = [], [], []  # sizes: how many of a block's runs are its part's
+    blocks, owners, owned = [], [], []  # owned: how many of a block's runs are its part's
     for index, part in enumerate(parts):
         for block, runs in part_blocks(part):
             blocks.append(block)
             owners.append(index)
-            sizes.append(runs)
+            owned.append(runs)
     prepare(program, blocks)
     schedule = calls(iterations)
     history = [[None] * len(blocks) for _ in schedule]
@@ -597,7 +599,7 @@ def run(program, iterations, parts, on_iteration=None):
             if finished[call] < num_workers:
                 break  # a worker failed; its error is raised below
             shown = np.concatenate([np.asarray(m)[:count, MEAN_RETURN, :runs]
-                                    for m, runs in zip(history[call], sizes)], axis=-1)
+                                    for m, runs in zip(history[call], owned)], axis=-1)
             for offset, mean_returns in enumerate(shown):
                 on_iteration(start + offset, mean_returns)
         for worker in workers:
@@ -608,11 +610,11 @@ def run(program, iterations, parts, on_iteration=None):
         mine = [i for i, owner in enumerate(owners) if owner == index]
         metrics = jax.device_get([[history[c][i] for i in mine] for c in range(len(schedule))])
         rows = np.concatenate([  # [I, fields, R_p]
-            np.concatenate([m[..., :sizes[i]] for m, i in zip(call, mine)], axis=-1)[:count]
+            np.concatenate([m[..., :owned[i]] for m, i in zip(call, mine)], axis=-1)[:count]
             for call, (_, count) in zip(metrics, schedule)])
         stacked = Metrics(*np.moveaxis(rows, 0, -1))
         params = policies.unflatten(
-            np.concatenate([finals[i].policy_params[:, :sizes[i]] for i in mine], axis=-1),
+            np.concatenate([finals[i].policy_params[:, :owned[i]] for i in mine], axis=-1),
             program.network)
         results.append(TrainResult(jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), params),
                                    stacked))

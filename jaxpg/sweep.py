@@ -185,24 +185,32 @@ def device_bytes(program, iterations, num_runs):
     XLA's buffer assignment for one call of `program` (its arguments, among them the training
     state; outputs; temporaries; generated code), from the compiled program's
     `memory_analysis()`, plus every call's metrics, which stay on the device until the end.
-    It compiles for this process's first device, as training does, so that training reuses it.
+    A CPU trains the runs in blocks (`reinforce.cpu_blocks`): every block's state and metrics
+    count, and the temporaries of as many blocks as train at once. It compiles the program that
+    training runs, for this process's first device, so that training reuses it.
     """
-    device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
-    keys = jax.ShapeDtypeStruct((num_runs, 2), jnp.uint32, sharding=device)
+    device = jax.local_devices()[0]
+    if device.platform == "cpu":
+        bounds, size = reinforce.cpu_blocks(num_runs)
+        blocks, at_once = len(bounds), min(len(bounds), reinforce.usable_cores())
+    else:
+        size, blocks, at_once = num_runs, 1, 1
+    placed = jax.sharding.SingleDeviceSharding(device)
+    keys = jax.ShapeDtypeStruct((size, 2), jnp.uint32, sharding=placed)
     hyperparams = reinforce.Hyperparams(
-        *[jax.ShapeDtypeStruct((num_runs,), jnp.float32, sharding=device)] * 2
+        *[jax.ShapeDtypeStruct((size,), jnp.float32, sharding=placed)] * 2
     )
     state = jax.tree.map(
-        lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=device),
+        lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=placed),
         program.init.eval_shape(keys, hyperparams),
     )
     count = jax.ShapeDtypeStruct((), jnp.int32)  # as `run` passes it: a numpy scalar
     _, metrics = program.iterate.eval_shape(state, hyperparams, count)
     stats = program.iterate.lower(state, hyperparams, count).compile().memory_analysis()
-    call = (stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
-            + stats.generated_code_size_in_bytes - stats.alias_size_in_bytes)
+    kept = stats.argument_size_in_bytes + stats.output_size_in_bytes - stats.alias_size_in_bytes
     history = len(reinforce.calls(iterations)) * metrics.size * metrics.dtype.itemsize
-    return call + history
+    return (blocks * (kept + history) + at_once * stats.temp_size_in_bytes
+            + stats.generated_code_size_in_bytes)
 
 
 def fitting_chunk_size(program, iterations, num_runs, memory_budget):

@@ -42,12 +42,12 @@ def assert_trained_alike(actual, expected):
     """Two trees of training results are equal bit for bit, but for gradient norms (leaves whose
     path names `grad_norm`), equal to one unit in the last place. The tests run under XLA's
     default setting, in which LLVM unrolls loops and can then round a run's gradient norm
-    differently in a block of another size (seen in the first iteration only). Under the `jaxpg`
-    command's setting (`jaxpg.flags`) it does not: `benchmarks/check_alone.py` compares every bit.
+    differently in a block of another size. Under the `jaxpg` command's setting (`jaxpg.flags`)
+    it does not: `benchmarks/check_alone.py` compares every bit.
     """
     expected_leaves, structure = jax.tree_util.tree_flatten_with_path(expected)
     actual_leaves = jax.tree.leaves(actual)
-    assert jax.tree.structure(actual) == jax.tree.structure(expected)
+    assert jax.tree.structure(actual) == structure
     for (path, want), got in zip(expected_leaves, actual_leaves):
         name = jax.tree_util.keystr(path)
         if "grad_norm" in name:

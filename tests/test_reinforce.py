@@ -342,7 +342,9 @@ def test_cpu_blocks_cover_the_runs_padded_to_one_size(num_runs, cores, monkeypat
         assert len(blocks) % cores == 0  # every core trains
 
 
-def test_blocks_padded_with_copies_train_their_runs_as_alone():
+@pytest.mark.parametrize("cores", [1, 2])  # one block of 5 runs padded to 8; blocks of 2 and 3 to 4
+def test_blocks_padded_with_copies_train_their_runs_as_alone(cores, monkeypatch):
+    monkeypatch.setattr(reinforce, "usable_cores", lambda: cores)
     config = TrainConfig(iterations=3, episodes=3, max_steps=30)
     blocks, size = reinforce.cpu_blocks(5)
     assert size > max(stop - start for start, stop in blocks)  # copies in every block
