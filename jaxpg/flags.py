@@ -36,8 +36,9 @@ another thread each time. One seed trained in a median of 0.056 s that way again
 thread (six alternating pairs of processes), compiled as fast, bit for bit alike. More runs are the
 other way round. Blocks side by side need a thread each: with one thread in XLA's pool, 64 seeds
 (two blocks of 32, as blocks were then) took 1.08 and 0.96 s instead of 0.51 and 0.51 s. And the
-kernels of a large block gain from the split: 63 seeds in one block took 1.94 and 2.01 s on one thread against 1.62 and
-1.73 s (`benchmarks/results/train_throughput-20261201-2056*.json`, `-214[56]*.json`).
+kernels of a large block gain from the split: 63 seeds in one block took 1.94 and 2.01 s on one
+thread against 1.62 and 1.73 s (`benchmarks/results/train_throughput-20261201-2056*.json`,
+`-214[56]*.json`).
 
 The setting belongs to the whole process: jaxpg applies it to its own command and its training
 benchmark only. Any program can opt in by calling `configure_xla` before JAX computes anything.

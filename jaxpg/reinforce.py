@@ -645,16 +645,27 @@ def _state_like(program, keys, hyperparams):
         lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=sharding), shapes)
 
 
+def device_blocks(num_runs, device):
+    """The blocks in which `device` trains `num_runs` runs, as `cpu_blocks` gives them: in
+    `cpu_blocks` on a CPU, the runs whole in one block elsewhere."""
+    if device.platform != "cpu":
+        return [(0, num_runs)], num_runs
+    return cpu_blocks(num_runs)
+
+
 def part_blocks(part):
-    """A part's runs as `run` trains them: `(inputs, runs)` of each block, whose first `runs` runs
-    are the part's and the rest copies of them. In `cpu_blocks` on a CPU, whole elsewhere."""
+    """A part's runs as `run` trains them (`device_blocks`): `(inputs, runs)` of each block, whose
+    first `runs` runs are the part's and the rest copies of them, where the block needs them."""
     keys = part[0]
     device = next(iter(keys.devices())) if isinstance(keys, jax.Array) else jax.devices()[0]
-    if device.platform != "cpu":
-        return [(part, keys.shape[0])]
-    bounds, size = cpu_blocks(keys.shape[0])
-    return [(jax.tree.map(lambda leaf: leaf[np.resize(np.arange(start, stop), size)], part),
-             stop - start) for start, stop in bounds]
+    bounds, size = device_blocks(keys.shape[0], device)
+
+    def block(start, stop):
+        full = stop - start == size
+        runs = slice(start, stop) if full else np.resize(np.arange(start, stop), size)
+        return jax.tree.map(lambda leaf: leaf[runs], part)
+
+    return [(block(start, stop), stop - start) for start, stop in bounds]
 
 
 def run_keys(seeds):

@@ -185,16 +185,13 @@ def device_bytes(program, iterations, num_runs):
     XLA's buffer assignment for one call of `program` (its arguments, among them the training
     state; outputs; temporaries; generated code), from the compiled program's
     `memory_analysis()`, plus every call's metrics, which stay on the device until the end.
-    A CPU trains the runs in blocks (`reinforce.cpu_blocks`): every block's state and metrics
+    A CPU trains the runs in blocks (`reinforce.device_blocks`): every block's state and metrics
     count, and the temporaries of as many blocks as train at once. It compiles the program that
     training runs, for this process's first device, so that training reuses it.
     """
     device = jax.local_devices()[0]
-    if device.platform == "cpu":
-        bounds, size = reinforce.cpu_blocks(num_runs)
-        blocks, at_once = len(bounds), min(len(bounds), reinforce.usable_cores())
-    else:
-        size, blocks, at_once = num_runs, 1, 1
+    bounds, size = reinforce.device_blocks(num_runs, device)
+    blocks, at_once = len(bounds), min(len(bounds), reinforce.usable_cores())
     placed = jax.sharding.SingleDeviceSharding(device)
     keys = jax.ShapeDtypeStruct((size, 2), jnp.uint32, sharding=placed)
     hyperparams = reinforce.Hyperparams(
