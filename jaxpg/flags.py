@@ -7,26 +7,31 @@ same, except the gradient norm, which nothing is computed from: it can differ in
 since LLVM fuses one of its multiplications and additions into one rounding in one code layout and
 not in another.
 
-Second, XLA's CPU backend compiles a `while` loop whose body touches fewer bytes than a threshold
-into one function, with its older IR emitter, rather than kernel by kernel with its fusion emitters
-(a dozen milliseconds of compiling each, whatever their size). At XLA's 1024 bytes that is the
-discounting loop alone; at `WHOLE_LOOP_BYTES`, the rollout's loop over its chunks too, for any
-block of runs a CPU trains (`reinforce.CPU_BLOCK`). The ten-iteration loop and the gradient's loop
-stay kernel by kernel: XLA compiled neither whole at any threshold tried, up to 2**40 bytes. In
-alternating processes, 1 seed compiled in 1.95, 1.85 and 1.82 s instead of 2.38, 1.99 and 2.11 s
-and trained in 0.041, 0.039 and 0.045 s instead of 0.053, 0.041 and 0.048 s; 8 seeds trained in
-0.13 to 0.14 s instead of 0.23 to 0.25 s; 64 to 1024 seeds about as fast. Every seed trains bit for
-bit as before, alone and side by side (1 to 1024 seeds; the book's seeds 0 to 63 alone as in one
-block), and `jaxpg evaluate` reports the same statistics, sooner.
+Second, XLA's CPU backend compiles a `while` loop into one function, with its older IR emitter,
+rather than kernel by kernel with its fusion emitters (a dozen milliseconds of compiling each,
+whatever their size), when its cost model's bytes accessed are under a threshold and nothing in it
+calls a library (a custom fusion). At XLA's 1024 bytes that is the discounting loop alone. At
+`WHOLE_LOOP_BYTES` it is the whole ten-iteration loop of the training program, of a run alone and
+of any block of runs a CPU trains (`reinforce.CPU_BLOCK`; 28 MB for 16 runs of the book's
+settings): each program is one function, which LLVM compiles on one thread in less CPU time than
+XLA's kernels on two, and which runs without dispatching kernels. The loop of a block of more
+episodes or steps stays kernel by kernel. `rollout.rollout` sums its returns as integers for this:
+XLA handed the float sum of a block's records to YNNPACK, whose call kept the loop kernel by kernel
+at any threshold. At 16 MiB, as before, only the loop of a run alone was one function; with those
+of blocks too, 1024 seeds trained in 3.6 to 4.1 s instead of 4.3 to 4.5 s and compiled in 1.2 to
+1.6 s instead of 1.9 to 2.0 s (alternating processes), bit for bit as before at 1 to 1024 seeds.
+With the rollout's loop compiled whole (an earlier version), 1 seed compiled in 1.95, 1.85 and
+1.82 s and 8 seeds trained in 0.13 to 0.14 s, against 2.38, 1.99 and 2.11 s and 0.23 to 0.25 s at
+XLA's 1024 bytes; `jaxpg evaluate` reports the same statistics, sooner.
 Only as long as a run alone compiles with XLA's own vector width: with 512-bit vectors
-(`reinforce.TOGETHER_OPTIONS`, which several runs use) its rollout compiled whole rounds some
-episodes differently (8 of the book's seeds 0 to 15 ended elsewhere), as the older emitter can
-round a run axis of one entry differently from two or more, by how LLVM fuses multiplications and
-additions into FMAs. The ten-iteration loop compiled whole, in an earlier version of the program,
-made 17 of seeds 0 to 63 end with other parameters alone. `tests/test_flags.py` trains seeds alone
-and side by side under the setting (`benchmarks/check_alone.py`) to keep it so. A loop over very
-large arrays loses XLA's splitting of kernels over the cores (a stream of 65536 environments ran
-79 M steps/s instead of 105 M); `benchmarks/env_throughput.py` measures XLA's defaults.
+(`reinforce.TOGETHER_OPTIONS`, which blocks use) its rollout compiled whole rounds some episodes
+differently (8 of the book's seeds 0 to 15 ended elsewhere), as the older emitter can round a run
+axis of one entry differently from two or more, by how LLVM fuses multiplications and additions
+into FMAs. While a run alone still had a run axis of one entry, its ten-iteration loop compiled
+whole made 17 of seeds 0 to 63 end with other parameters alone. `tests/test_flags.py` trains seeds
+alone and side by side under the setting (`benchmarks/check_alone.py`) to keep it so. A loop over
+very large arrays loses XLA's splitting of kernels over the cores (a stream of 65536 environments
+ran 79 M steps/s instead of 105 M); `benchmarks/env_throughput.py` measures XLA's defaults.
 
 Third, a process that trains one run at a time (`jaxpg train`) gives XLA's CPU client one thread
 (`PJRT_NPROC=1`). The client's pool has one thread per core by default, and XLA then splits the
@@ -46,7 +51,7 @@ benchmark only. Any program can opt in by calling `configure_xla` before JAX com
 
 import os
 
-WHOLE_LOOP_BYTES = 1 << 24  # above the rollout's loop of CPU_BLOCK runs (under 2 MB)
+WHOLE_LOOP_BYTES = 1 << 26  # above the ten-iteration loop of CPU_BLOCK runs (28 MB, the book's)
 BACKEND_OPTIONS = {
     "xla_cpu_disable_loop_unrolling": "true",  # XLA reads its presence, whatever the value
     "xla_cpu_small_while_loop_byte_threshold": str(WHOLE_LOOP_BYTES),

@@ -142,9 +142,12 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
     _, records = jax.lax.scan(one_chunk, carry, (noise, steps))
     records = records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps, :, :num_episodes]
-    # Rewards and alive steps summed in one reduction, exactly: their sums are whole numbers.
-    returns, alive_steps = records[:, 5:7].sum(axis=0)
-    return Episodes(_transitions(records), returns, alive_steps.astype(jnp.int32))
+    # Rewards and alive steps summed in one reduction, exactly: they are whole numbers. Summed as
+    # integers, since XLA hands a float sum of several runs' records to a library (YNNPACK), whose
+    # call keeps XLA from compiling the training iteration around it into one function
+    # (`jaxpg.flags`).
+    returns, alive_steps = records[:, 5:7].astype(jnp.int32).sum(axis=0)
+    return Episodes(_transitions(records), returns.astype(records.dtype), alive_steps)
 
 
 class StreamState(NamedTuple):

@@ -92,14 +92,49 @@ def test_under_the_setting_seeds_train_alone_as_side_by_side():
     """The book's seeds 0 to 20 train alone (in a process of one thread, as `jaxpg train`) as in
     two blocks of 10 and 11 runs padded to 16, by `benchmarks/check_alone.py`.
 
-    XLA's whole-loop compiling (`xla_cpu_small_while_loop_byte_threshold`, in the setting) breaks
-    this when it takes more than the rollout's loop, or when a run alone asks for 512-bit vectors
-    (`jaxpg.flags`): a program of one run then rounds differently from that of several. Runs alone
-    cost little once their program is compiled (about 9 s in all, in two processes).
+    The programs of one run and of several are compiled apart, each into one function
+    (`xla_cpu_small_while_loop_byte_threshold`, in the setting), and XLA can round them
+    differently: it did when a run alone asked for 512-bit vectors, or still had a run axis of one
+    entry (`jaxpg.flags`). Runs alone cost little once their program is compiled (about 9 s in
+    all, in two processes).
     """
     result = subprocess.run([sys.executable, str(CHECK_ALONE), "--seeds", "21"],
                             env={**os.environ, "XLA_FLAGS": ""}, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+# Compiles the iteration of a run alone and of a block of CPU_BLOCK runs with the book's settings,
+# under the setting, and prints for each how many `while` loops its entry computation runs kernel by
+# kernel and how many it calls as one function.
+WHOLE = """
+from jaxpg import flags
+flags.configure_xla()
+import numpy as np
+from jaxpg import reinforce
+from jaxpg.sweep import check_seeds, expand_grid, run_inputs
+
+config = reinforce.TrainConfig()
+program = reinforce.compiled_program(config)
+for runs in (1, reinforce.CPU_BLOCK):
+    keys, hyperparams = run_inputs(check_seeds(range(runs)), expand_grid(config, None))
+    state = program.init(keys, hyperparams)
+    text = program.iterate.lower(state, hyperparams, np.int32(1)).compile().as_text()
+    entry = text[text.index("ENTRY"):]
+    entry = entry[:entry.index("\\n}")]
+    print(runs, entry.count(" while("), entry.count('xla_cpu_small_call="true"'))
+"""
+
+
+def test_under_the_setting_the_iteration_compiles_into_one_function():
+    """The ten-iteration loop of a run alone and of a block of runs is one function: compiled
+    sooner than kernel by kernel, and run sooner. A float sum that XLA hands to a library, a
+    library call anywhere in the loop, or a loop of more bytes than `flags.WHOLE_LOOP_BYTES` would
+    keep it kernel by kernel."""
+    result = _run(WHOLE)
+    assert result.returncode == 0, result.stderr
+    counts = {int(runs): (int(loops), int(calls))
+              for runs, loops, calls in (line.split() for line in result.stdout.splitlines())}
+    assert counts == {1: (0, 1), reinforce.CPU_BLOCK: (0, 1)}
 
 
 def _optimized_ir_lines(tmp_path, setting):
