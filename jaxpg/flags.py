@@ -18,8 +18,9 @@ XLA's kernels on two, and which runs without dispatching kernels. The loop of a 
 episodes or steps stays kernel by kernel. `rollout.rollout` sums its returns as integers for this:
 XLA handed the float sum of a block's records to YNNPACK, whose call kept the loop kernel by kernel
 at any threshold. At 16 MiB, as before, only the loop of a run alone was one function; with those
-of blocks too, 1024 seeds trained in 3.6 to 4.1 s instead of 4.3 to 4.5 s and compiled in 1.2 to
-1.6 s instead of 1.9 to 2.0 s (alternating processes), bit for bit as before at 1 to 1024 seeds.
+of blocks too, 1024 seeds trained in a median of 3.62 s instead of 3.80 s, compiled in 1.24 to
+1.75 s instead of 1.48 to 1.83 s and peaked at 309 to 316 MiB instead of 392 to 406 MiB (four
+alternating pairs of processes), bit for bit as before at 1 to 1024 seeds.
 With the rollout's loop compiled whole (an earlier version), 1 seed compiled in 1.95, 1.85 and
 1.82 s and 8 seeds trained in 0.13 to 0.14 s, against 2.38, 1.99 and 2.11 s and 0.23 to 0.25 s at
 XLA's 1024 bytes; `jaxpg evaluate` reports the same statistics, sooner.
