@@ -146,7 +146,7 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
     # integers, since XLA hands a float sum of several runs' records to a library (YNNPACK), whose
     # call keeps XLA from compiling the training iteration around it into one function
     # (`jaxpg.flags`).
-    returns, alive_steps = records[:, 5:7].astype(jnp.int32).sum(axis=0)
+    returns, alive_steps = records[:, 5:7].astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
     return Episodes(_transitions(records), returns.astype(records.dtype), alive_steps)
 
 

@@ -66,6 +66,22 @@ def test_steps_after_the_end_are_masked(init_state):
                 | (np.abs(before[:, 2]) > cartpole.V1.theta_threshold_radians)).any()
 
 
+@pytest.mark.parametrize("x64", [False, True], ids=["float32", "float64"])
+@pytest.mark.parametrize("sutton_barto", [False, True], ids=["reward 1", "Sutton-Barto reward"])
+def test_returns_and_lengths_are_the_sums_of_the_steps(x64, sutton_barto):
+    """Summed as integers (the rollout's reduction), in the dtypes of the rewards and of int32."""
+    with jax.enable_x64(x64):
+        episodes = jit_rollout(jax.random.PRNGKey(0), basic_policy,
+                               LIMITED.replace(sutton_barto_reward=sutton_barto), E, T)
+    episodes = jax.tree.map(np.asarray, episodes)  # compared outside the float64 context
+    assert episodes.returns.dtype == (np.float64 if x64 else np.float32)
+    assert episodes.lengths.dtype == np.int32
+    np.testing.assert_array_equal(episodes.returns, episodes.transitions.reward.sum(axis=0))
+    np.testing.assert_array_equal(episodes.lengths, episodes.transitions.alive.sum(axis=0))
+    # -1 for a fall, 0 for a truncation at 40 steps; 1 per step otherwise.
+    assert (episodes.returns == -1).any() if sutton_barto else (episodes.returns >= 1).all()
+
+
 def test_episode_in_a_batch_equals_episode_alone(init_state):
     batch = jit_rollout(jax.random.PRNGKey(0), basic_policy, LIMITED, E, T, init_state)
     for i in range(0, E, 8):
