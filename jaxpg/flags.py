@@ -17,13 +17,13 @@ settings): each program is one function, which LLVM compiles on one thread in le
 XLA's kernels on two, and which runs without dispatching kernels. The loop of a block of more
 episodes or steps stays kernel by kernel. `rollout.rollout` sums its returns as integers for this:
 XLA handed the float sum of a block's records to YNNPACK, whose call kept the loop kernel by kernel
-at any threshold. At 16 MiB, as before, only the loop of a run alone was one function; with those
-of blocks too, 1024 seeds trained in a median of 3.62 s instead of 3.80 s, compiled in 1.24 to
-1.75 s instead of 1.48 to 1.83 s and peaked at 309 to 316 MiB instead of 392 to 406 MiB (four
-alternating pairs of processes), bit for bit as before at 1 to 1024 seeds.
-With the rollout's loop compiled whole (an earlier version), 1 seed compiled in 1.95, 1.85 and
-1.82 s and 8 seeds trained in 0.13 to 0.14 s, against 2.38, 1.99 and 2.11 s and 0.23 to 0.25 s at
-XLA's 1024 bytes; `jaxpg evaluate` reports the same statistics, sooner.
+at any threshold. At 16 MiB, as before, only the loop of a run alone was one function (and the
+rollout's loop of a block); with those of blocks too, 64 to 1024 seeds compiled in a median of
+1.42 to 1.48 s instead of 1.67 to 1.73 s, trained 3 to 5 % sooner and peaked 65 to 100 MiB lower
+(four alternating pairs of benchmark runs), bit for bit as before at 1 to 1024 seeds. At 16 MiB
+against XLA's 1024 bytes (an earlier version, on an Intel Xeon), 1 seed compiled in 1.95, 1.85 and
+1.82 s instead of 2.38, 1.99 and 2.11 s and 8 seeds trained in 0.13 to 0.14 s instead of 0.23 to
+0.25 s; `jaxpg evaluate` reports the same statistics, sooner.
 Only as long as a run alone compiles with XLA's own vector width: with 512-bit vectors
 (`reinforce.TOGETHER_OPTIONS`, which blocks use) its rollout compiled whole rounds some episodes
 differently (8 of the book's seeds 0 to 15 ended elsewhere), as the older emitter can round a run

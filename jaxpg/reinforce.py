@@ -439,10 +439,10 @@ def compiled_program(config):
 # XLA's CPU fusion emitters (about 0.1 s sooner).
 INIT_OPTIONS = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 # The iteration of a block of several runs asks for 512-bit vectors (XLA's default is 256), for
-# speed: 1024 seeds trained in 9.5 to 11.3 s instead of 10.9 to 12.5 s. A block of one run does
-# not, for its bits: with its rollout's loop compiled whole (`jaxpg.flags`), 512-bit vectors round
-# some of its episodes differently from the same run's beside others (8 of the book's seeds 0 to
-# 15).
+# speed: 1024 seeds trained in 3.70 and 4.30 s instead of 5.50 and 5.69 s, the same bits. A block
+# of one run does not, for its bits: with its loop compiled whole (`jaxpg.flags`), 512-bit vectors
+# round some of its episodes differently from the same run's beside others (8 of the book's seeds
+# 0 to 15).
 TOGETHER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 
 
