@@ -4,14 +4,16 @@ A checkpoint is one file, by convention `policy.msgpack` (the name `jaxpg train 
 and `load(DIR)` reads), holding a msgpack map written by `flax.serialization.msgpack_serialize`:
 
     format          "jaxpg-checkpoint": marks the file as a jaxpg checkpoint
-    format_version  1: bumped when the layout changes; a reader refuses newer versions
+    format_version  1 (an integer): bumped when the layout changes; a reader refuses newer versions
     jaxpg_version   the `jaxpg.__version__` that wrote the file, e.g. "0.1.0"
     config          the `TrainConfig` as a map of its fields; `hidden` is a list, and `env` is
                     either a preset name ("CartPole-v1") or a map of `CartPoleParams` fields
     policy_params   the flax state dict of the policy network, e.g.
                     {"params": {"Dense_0": {"kernel": [4, 5], "bias": [5]}, "Dense_1": {...}}},
-                    arrays stored as flax's msgpack ndarray extension (dtype, shape, raw bytes)
-    metrics         nil, or a map of `Metrics` fields to arrays (`[I]` per-iteration statistics)
+                    arrays stored as flax's msgpack ndarray extension (dtype, shape, raw bytes),
+                    float32 or float64 and finite
+    metrics         nil, or a map of `Metrics` fields to float32 or float64 arrays (`[I]`
+                    per-iteration statistics)
 
 Any msgpack reader can open the file; flax's `msgpack_restore` turns the arrays back into numpy.
 
@@ -163,8 +165,9 @@ def load(path):
 
     Raises:
       FileNotFoundError: there is no such file.
-      ValueError: the file is truncated, not a jaxpg checkpoint, or from a newer format version;
-        the message names the path.
+      ValueError: the file is truncated, not a jaxpg checkpoint, from a newer format version, or
+        holds weights that are not finite float32 or float64 arrays (metrics: not float32 or
+        float64); the message names the path and the field.
     """
     path = resolve(path)
     try:
@@ -174,7 +177,7 @@ def load(path):
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise ValueError(f"{path}: not a jaxpg checkpoint (no {FORMAT!r} format marker)")
     format_version = payload.get("format_version")
-    if not isinstance(format_version, int) or format_version < 1:
+    if type(format_version) is not int or format_version < 1:  # (not a bool, an int subclass)
         raise ValueError(
             f"{path}: not a jaxpg checkpoint (bad format_version {format_version!r})"
         )
@@ -187,11 +190,32 @@ def load(path):
     try:
         version = str(payload["jaxpg_version"])
         config = config_from_dict(payload["config"])
+        _check_floats(payload["policy_params"], "policy_params", finite=True)
         policy_params = jax.tree.map(jnp.asarray, payload["policy_params"])
         _check_params_match(policy_params, config, "policy_params")
         metrics = payload.get("metrics")
         if metrics is not None:
+            _check_floats(metrics, "metrics", finite=False)  # a diverged run's are not finite
             metrics = reinforce.Metrics(**{k: jnp.asarray(v) for k, v in metrics.items()})
     except (AttributeError, KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: damaged jaxpg checkpoint ({type(e).__name__}: {e})") from None
     return Checkpoint(policy_params, config, version, metrics)
+
+
+_FLOAT_DTYPES = (np.float32, np.float64)
+
+
+def _check_floats(tree, name, finite):
+    """Raises a ValueError naming the first leaf of `tree` that is not a float32 or float64 array
+    (or, where `finite`, holds a NaN or an infinity)."""
+    if not isinstance(tree, dict):
+        raise ValueError(f"{name}: expected a map, got {type(tree).__name__}")
+    for key, leaf in tree.items():
+        where = f"{name}.{key}"
+        if isinstance(leaf, dict):
+            _check_floats(leaf, where, finite)
+        elif not isinstance(leaf, np.ndarray) or leaf.dtype not in _FLOAT_DTYPES:
+            got = leaf.dtype if isinstance(leaf, np.ndarray) else type(leaf).__name__
+            raise ValueError(f"{where}: expected float32 or float64 values, got {got}")
+        elif finite and not np.isfinite(leaf).all():
+            raise ValueError(f"{where}: values must be finite, got NaN or infinity")

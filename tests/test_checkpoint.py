@@ -124,6 +124,44 @@ def test_bad_files_raise_a_value_error_naming_the_path(tmp_path, content, proble
     assert str(path) in str(error.value)
 
 
+def _with_kernel(values):
+    """CONFIG's parameters with the first layer's kernel replaced by `values`."""
+    params = jax.tree.map(np.asarray, _params(CONFIG))
+    kernel = params["params"]["Dense_0"]["kernel"]
+    params["params"]["Dense_0"]["kernel"] = np.broadcast_to(values, kernel.shape)
+    return params
+
+
+@pytest.mark.parametrize(
+    "changes, problem",
+    [
+        ({"policy_params": _with_kernel(np.complex64(1 + 2j))}, "kernel: expected float32 or float64"),
+        ({"policy_params": _with_kernel(np.int8(3))}, "kernel: expected float32 or float64"),
+        ({"policy_params": _with_kernel(np.float32(np.nan))}, "kernel: values must be finite"),
+        ({"policy_params": _with_kernel(np.float64(np.inf))}, "kernel: values must be finite"),
+        ({"metrics": {**_metrics()._asdict(), "loss": "small"}},
+         "metrics.loss: expected float32 or float64 values, got str"),
+        ({"format_version": True}, "bad format_version True"),
+        ({"format_version": 1.0}, "bad format_version 1.0"),
+    ],
+    ids=["complex64", "int8", "nan", "inf", "text-metric", "bool-version", "float-version"],
+)
+def test_contents_of_the_wrong_type_raise_one_line_naming_the_path_and_field(
+        tmp_path, changes, problem):
+    path = tmp_path / "policy.msgpack"
+    path.write_bytes(_payload(**changes))
+    with pytest.raises(ValueError, match=problem) as error:
+        checkpoint.load(path)
+    assert str(path) in str(error.value) and "\n" not in str(error.value)
+
+
+def test_metrics_of_a_diverged_run_load(tmp_path):
+    metrics = _metrics()._replace(loss=np.array([1.0, np.nan, np.inf], np.float32))
+    path = tmp_path / "policy.msgpack"
+    path.write_bytes(_payload(metrics=jax.tree.map(np.asarray, metrics._asdict())))
+    np.testing.assert_array_equal(checkpoint.load(path).metrics.loss, metrics.loss)
+
+
 def test_missing_file_raises_file_not_found(tmp_path):
     with pytest.raises(FileNotFoundError, match="policy.msgpack"):
         checkpoint.load(tmp_path)
