@@ -99,23 +99,38 @@ def _enable_compilation_cache(disabled, whole_programs=False):
     """
     if disabled:
         return
-    cache_home = pathlib.Path(os.environ.get("XDG_CACHE_HOME", pathlib.Path.home() / ".cache"))
+    cache = _cache_home() / "jaxpg"
     if whole_programs:
         from jaxpg import executables
 
-        executables.enable(cache_home / "jaxpg" / "programs")
+        executables.enable(cache / "programs")
         return
     import jax
 
-    jax.config.update("jax_compilation_cache_dir", str(cache_home / "jaxpg" / "xla"))
+    from jaxpg import results
+
+    try:
+        results.private_directory(cache / "xla")
+    except OSError:
+        pass  # JAX then keeps nothing there, and says so
+    jax.config.update("jax_compilation_cache_dir", str(cache / "xla"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def _cache_home():
+    """$XDG_CACHE_HOME, or ~/.cache where it is unset, empty or relative (the XDG base directory
+    specification says to ignore such values)."""
+    value = os.environ.get("XDG_CACHE_HOME", "")
+    return pathlib.Path(value) if os.path.isabs(value) else pathlib.Path.home() / ".cache"
 
 
 def _load_policy(spec):
     """`basic`, or a directory or file written by `jaxpg train`: (policy, description)."""
     from jaxpg import checkpoint, policies
 
+    if not spec:
+        raise ValueError("policy: expected 'basic' or a checkpoint written by jaxpg train, got an empty path")
     if spec == "basic":
         return policies.basic_policy, "the basic angle policy"
     path = pathlib.Path(spec)
@@ -133,8 +148,8 @@ def cmd_train(args):
     from jaxpg.reinforce import train
 
     config = _config(args, learning_rate=args.lr, discount=args.discount)
-    out = results.check_out_dir(args.out)
     check_int("seed", args.seed, 0)
+    out = results.claim(args.out)  # held until the results are in place: a second run is refused
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     result = train(config, seed=args.seed, show_progress=not args.quiet)
@@ -190,7 +205,7 @@ def cmd_sweep(args):
     config = _config(args, learning_rate=args.lr[0], discount=args.discount[0])
     grid = {"learning_rate": args.lr, "discount": args.discount}
     expand_grid(config, grid)  # validates before compiling
-    out = results.check_out_dir(args.out)
+    out = (results.claim if writes_results else results.check_out_dir)(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet,

@@ -1,68 +1,285 @@
-"""Writing files so that a failure never loses or corrupts what was there before.
+"""Writing files so that a failure, a kill or a second process never loses or mixes results.
 
-A run's results go to an output directory all or none: they are first written to a staging
-folder inside it and renamed into place only once every one of them is complete, so a run that
-fails (or is killed) leaves an earlier run's results as they were.
+A run's results go to an output folder all or none. They are written to a staging folder beside
+it, and the staging folder then takes the output folder's place in one step, holding the run's
+files and the earlier files of other names (`jaxpg sweep` adds its comparison report to the
+sweep's folder as a second step). A reader sees the earlier folder or the new one, never a mix:
+
+- On Linux the two folders trade places in one system call (`renameat2` with `RENAME_EXCHANGE`,
+  through ctypes). A kill at any moment leaves the earlier folder or the new one in place, and
+  the output folder stays a real folder (a symbolic link swapped for a new target would also be
+  one step, but would turn the user's folder into a link).
+- Elsewhere, or on a file system without the exchange, the earlier folder is renamed aside and
+  the new one renamed into place. A kill between the two renames leaves no output folder and the
+  earlier one aside (`.NAME.old-*`), which the next run into that folder puts back first.
+
+A lock (`fcntl.flock` on `.NAME.lock`, beside the folder) keeps a second process from writing the
+same folder while the first trains and writes; the second is refused at once. The lock is
+released when the process ends, so a killed run leaves nothing locked; whatever it left half
+done (`.NAME.staging-*` folders, `.staging-*` folders inside the output folder from earlier
+versions) is removed by the next run that takes the lock.
 
 Every single file jaxpg writes (checkpoints, animations, plots, kept programs) goes through
 `atomic_path`: the content is written to a temporary file in the same directory, flushed to disk,
 then renamed over the target, so a crash mid-write leaves the previous file intact (and perhaps a
-stray `.NAME.*.tmp*` file beside it).
+stray `.NAME.*.tmp*` file beside it, which `remove_stale_temporaries` removes once no process
+writes it).
 """
 
 import contextlib
 import csv
+import ctypes
+import errno
+import functools
 import io
 import json
+import math
 import os
 import pathlib
+import re
 import shutil
+import sys
 import uuid
 
 import numpy as np
 
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks; a second writer is not detected there
+    fcntl = None
+
+NAME_MAX = 255  # bytes in a file name (Linux, macOS and Windows file systems alike)
+
+
+def temporary_name(name, tag):
+    """`.NAME.TAG`, with NAME cut short (at a character) so that the whole fits in NAME_MAX bytes.
+
+    The same `name` and `tag` length always give the same cut, so that names made with other
+    tags of that length can be recognised (`_beside`).
+    """
+    room = max(NAME_MAX - len(tag.encode()) - 2, 0)
+    return f".{name.encode()[:room].decode(errors='ignore')}.{tag}"
+
+
+def _unique():
+    return uuid.uuid4().hex[:12]
+
+
+# --- Output folders ------------------------------------------------------------------------------
+
 
 def check_out_dir(out):
-    """The output directory as a Path; a ValueError when it names an existing file."""
+    """The output directory as a Path; a ValueError when it cannot hold jaxpg's results.
+
+    Refused: an empty path, an existing file (or a file among its parents), the working directory
+    or a directory above it, and a directory holding other directories, which jaxpg never writes
+    (its results are files only).
+    """
+    if not os.fspath(out):
+        raise ValueError("out: expected a directory, got an empty path")
     out = pathlib.Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file; give a directory (it is created if missing)")
     for parent in out.parents:
         if parent.exists():
             if not parent.is_dir():
-                raise ValueError(f"out: {parent} is a file, so {out} cannot be created")
+                raise ValueError(f"out: {out.parent} is a file, so {out} cannot be created")
             break
+    if out.is_dir():
+        real, here = out.resolve(), pathlib.Path.cwd().resolve()
+        if real == here or real in here.parents:
+            raise ValueError(f"out: {out} holds the working directory; give a directory for "
+                             "jaxpg's results alone")
+        folders = sorted(p.name for p in out.iterdir()
+                         if p.is_dir() and not _LEGACY_STAGING.fullmatch(p.name))
+        if folders:
+            raise ValueError(f"out: {out} holds directories ({', '.join(folders[:3])}), which "
+                             "jaxpg never writes; give a new or empty directory, or one that "
+                             "jaxpg wrote")
     return out
+
+
+_LEGACY_STAGING = re.compile(r"\.staging-[0-9a-f]{12}")  # inside the folder, by jaxpg 0.1.0
+_held = {}  # the output folders this process has claimed: real path -> its open lock file
+
+
+def claim(out):
+    """Checks `out` (`check_out_dir`) and locks it against other processes until `staged` has
+    replaced it, or this process ends; then removes what killed runs left there.
+
+    Claiming a folder this process holds already does nothing more.
+
+    Returns:
+      `out` as a Path.
+
+    Raises:
+      ValueError: `out` cannot hold results, or another process holds it.
+    """
+    out = check_out_dir(out)
+    real = _real(out)
+    if real in _held:
+        return out
+    real.parent.mkdir(parents=True, exist_ok=True)
+    lock = open(real.parent / temporary_name(real.name, "lock"), "a")
+    try:
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.close()
+        raise ValueError(f"out: another jaxpg process is writing to {out}; wait for it to end, "
+                         "or give another directory") from None
+    _held[real] = lock
+    _recover(real)
+    return out
+
+
+def _release(real):
+    lock = _held.pop(real, None)
+    if lock is not None:
+        lock.close()
+
+
+def _real(out):
+    """The folder that `out` names, symbolic links followed: the one that is replaced."""
+    return pathlib.Path(os.path.realpath(out))
+
+
+def _beside(real, kind):
+    """The entries beside the folder `real` named `temporary_name(real.name, KIND-<12 hex>)`."""
+    pattern = temporary_name(real.name, f"{kind}-{'0' * 12}")
+    prefix = pattern[:-12]
+    return [path for path in real.parent.iterdir()
+            if len(path.name) == len(pattern) and path.name.startswith(prefix)
+            and re.fullmatch(r"[0-9a-f]{12}", path.name[len(prefix):])]
+
+
+def _recover(real):
+    """Undoes what killed runs left: puts back an earlier folder left aside, and removes staging
+    folders. Only for a folder this process holds the lock of."""
+    aside = _beside(real, "old")
+    if aside and not real.exists():
+        os.rename(aside.pop(), real)
+    for path in aside + _beside(real, "staging"):
+        _remove(path)
+    if real.is_dir():
+        for path in real.iterdir():
+            if path.is_dir() and _LEGACY_STAGING.fullmatch(path.name):
+                _remove(path)
 
 
 @contextlib.contextmanager
 def staged(out):
-    """Yields a staging folder; on success its files replace those of the same name in `out`."""
-    out = check_out_dir(out)
-    out.mkdir(parents=True, exist_ok=True)
-    staging = out / f".staging-{uuid.uuid4().hex[:12]}"
-    staging.mkdir()
+    """Yields an empty staging folder; when the block ends without an error, it takes the place of
+    `out` in one step, holding the files written there and `out`'s earlier files of other names.
+
+    `out` is claimed (`claim`) if it was not, and released at the end, whether the block ended in
+    an error or not. On an error `out` is left as it was.
+    """
+    out = claim(out)
+    real = _real(out)
+    staging = real.parent / temporary_name(real.name, f"staging-{_unique()}")
     try:
+        staging.mkdir()
         yield staging
-        for path in sorted(staging.iterdir()):
-            path.replace(out / path.name)
+        if real.is_dir():
+            _carry_over(real, staging)
+        _sync_folder(staging)
+        _replace(staging, real)
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        _remove(staging)  # after an exchange, the earlier folder
+        _release(real)
+
+
+def _carry_over(old, new):
+    """Links into `new` the files of `old` of names that `new` lacks, and `old`'s permissions.
+
+    Links, not copies: no file is read or written, and none that a reader has open changes.
+    """
+    for path in old.iterdir():
+        if not (new / path.name).exists() and not _LEGACY_STAGING.fullmatch(path.name):
+            os.link(path, new / path.name, follow_symlinks=False)
+    shutil.copymode(old, new)
+
+
+def _sync_folder(folder):
+    """Flushes the files of `folder` and the folder itself to disk, so that after a power cut
+    the folder that took the output folder's place is whole too."""
+    for path in folder.iterdir():
+        if path.is_file():
+            _fsync(path, os.O_RDONLY)
+    _fsync_directory(folder)
+
+
+def _replace(new, out):
+    """Puts the folder `new` at `out` in one step where the system can; afterwards `new` holds the
+    earlier folder, if there was one."""
+    if not out.exists():
+        os.rename(new, out)
+    elif not _exchange(new, out):
+        aside = out.parent / temporary_name(out.name, f"old-{_unique()}")
+        os.rename(out, aside)
+        os.rename(new, out)  # a kill just before this is undone by the next claim (`_recover`)
+        os.rename(aside, new)
+    _fsync_directory(out.parent)
+
+
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
+
+
+@functools.cache
+def _renameat2():
+    """glibc's `renameat2`, or None where there is none (not Linux, or glibc before 2.28)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    function = getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
+    if function is not None:
+        function.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p,
+                             ctypes.c_uint]
+    return function
+
+
+def _exchange(a, b):
+    """Swaps the entries `a` and `b` in one step; False where the system or the file system
+    cannot, and then nothing has changed."""
+    renameat2 = _renameat2()
+    if renameat2 is None:
+        return False
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    error = ctypes.get_errno()
+    if error in (errno.ENOSYS, errno.EINVAL, errno.EOPNOTSUPP):  # EINVAL: a file system without
+        return False
+    raise OSError(error, os.strerror(error), os.fspath(b))
+
+
+def _remove(path):
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+# --- Writing files ---------------------------------------------------------------------------------
 
 
 def to_json(value):
-    """Arrays and numpy scalars as plain lists and numbers, for `json.dumps`."""
+    """Arrays and numpy scalars as plain lists and numbers, for `json.dumps`; NaN and infinities
+    (a diverged run's) as None, JSON's null, for strict JSON has no such numbers."""
     if isinstance(value, dict):
         return {str(k): to_json(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [to_json(v) for v in value]
     if hasattr(value, "tolist"):
         return to_json(np.asarray(value).tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     return value
 
 
 def write_json(path, value):
-    pathlib.Path(path).write_text(json.dumps(to_json(value), indent=2) + "\n")
+    """Writes `value` as strict JSON (`to_json`), which every JSON reader reads."""
+    pathlib.Path(path).write_text(json.dumps(to_json(value), indent=2, allow_nan=False) + "\n")
 
 
 def write_csv(path, columns):
@@ -82,8 +299,10 @@ def atomic_path(path):
     """Yields a temporary path beside `path`; on success, moves the file written there onto `path`.
 
     The temporary name ends with the same suffix as `path`, so writers that pick a format from
-    the file name (imageio, matplotlib) write the right one. On an exception the temporary file
-    is removed and `path` is left as it was.
+    the file name (imageio, matplotlib) write the right one, and fits in NAME_MAX bytes for any
+    `path` whose own name does. The file is locked while it is written, so that
+    `remove_stale_temporaries` leaves it. On an exception the temporary file is removed and
+    `path` is left as it was.
 
     Args:
       path: the file to (over)write.
@@ -92,19 +311,58 @@ def atomic_path(path):
       A `pathlib.Path` that does not yet hold any content; write the whole file there.
     """
     path = pathlib.Path(path)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp{path.suffix}")
+    tmp = path.with_name(temporary_name(path.name, f"{_unique()}.tmp{path.suffix}"))
     # Created here (honouring the umask, unlike mkstemp's 0600) so the name is ours alone.
-    os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+    fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
     try:
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX)
         yield tmp
         _fsync(tmp, os.O_RDONLY)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    finally:
+        os.close(fd)
     # The rename is durable only once the directory entry is on disk; not possible on Windows.
     with contextlib.suppress(OSError):
-        _fsync(path.parent, getattr(os, "O_DIRECTORY", os.O_RDONLY))
+        _fsync_directory(path.parent)
+
+
+_TEMPORARY = re.compile(r"\..*\.[0-9a-f]{12}\.tmp.*", re.DOTALL)
+
+
+def remove_stale_temporaries(directory):
+    """Removes the temporary files that `atomic_path` left in `directory` in processes that were
+    killed; files that a process is writing (and so holds locked) stay."""
+    if fcntl is None or not pathlib.Path(directory).is_dir():
+        return
+    for path in pathlib.Path(directory).iterdir():
+        if not _TEMPORARY.fullmatch(path.name):
+            continue
+        try:
+            fd = os.open(path, os.O_RDONLY)
+        except OSError:  # renamed into place or removed meanwhile
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            path.unlink(missing_ok=True)
+        except BlockingIOError:
+            pass  # being written
+        finally:
+            os.close(fd)
+
+
+def private_directory(path):
+    """Creates the directory `path` and its missing parents, each for the user alone (0700),
+    as the XDG base directory specification asks of cache directories."""
+    path = pathlib.Path(path)
+    for folder in [*reversed(path.parents), path]:
+        if not folder.is_dir():
+            with contextlib.suppress(FileExistsError):  # made meanwhile by another process
+                folder.mkdir(mode=0o700)
+    return path
 
 
 def _fsync(path, flags):
@@ -113,6 +371,10 @@ def _fsync(path, flags):
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def _fsync_directory(path):
+    _fsync(path, getattr(os, "O_DIRECTORY", os.O_RDONLY))
 
 
 def atomic_write(path, data):

@@ -1,6 +1,8 @@
 """Fixtures and helpers shared by the tests."""
 
 import contextlib
+import subprocess
+import sys
 
 import jax
 import numpy as np
@@ -20,6 +22,28 @@ SMALL_GRID = {"learning_rate": [0.01, 0.02]}
 def small_sweep():
     """The small sweep in one chunk on one device, the reference for chunked and sharded runs."""
     return sweep(SMALL_CONFIG, SMALL_SEEDS, SMALL_GRID, show_progress=True)
+
+
+_HOLD = """
+import sys, time
+from jaxpg import results
+results.claim(sys.argv[1])
+print("held", flush=True)
+time.sleep(120)
+"""
+
+
+@contextlib.contextmanager
+def claimed_by_another_process(out):
+    """Inside the block, another process holds the output folder `out` (`results.claim`)."""
+    holder = subprocess.Popen([sys.executable, "-c", _HOLD, str(out)], stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert holder.stdout.readline() == "held\n"
+        yield
+    finally:
+        holder.kill()
+        holder.wait()
 
 
 @contextlib.contextmanager

@@ -2,13 +2,18 @@
 
 import json
 import os
+import shutil
+import stat
 import subprocess
 import sys
 
+import jax
 import numpy as np
 import pytest
+from conftest import claimed_by_another_process
+from jax.experimental.compilation_cache import compilation_cache
 
-from jaxpg import checkpoint, cli, flags
+from jaxpg import TrainConfig, checkpoint, cli, executables, flags, policies
 
 SMALL = ["--iterations", "3", "--episodes", "2", "--max-steps", "20", "--quiet", "--no-cache"]
 
@@ -137,3 +142,83 @@ def test_render_writes_a_gif(tmp_path):
     path = tmp_path / "cart.gif"
     assert cli.main(["render", "--out", str(path), "--max-steps", "10"]) == 0
     assert path.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+
+
+def _result(folder):
+    """What tells two `jaxpg train` results apart: all but the seconds it took."""
+    metrics = json.loads((folder / "metrics.json").read_text())
+    return (metrics["seed"], metrics["metrics"], (folder / "metrics.csv").read_text(),
+            (folder / checkpoint.FILENAME).read_bytes(), sorted(p.name for p in folder.iterdir()))
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace")
+def test_a_train_killed_at_any_rename_leaves_the_earlier_result_or_the_new_one(tmp_path):
+    """The issue's reproduction: strace kills the run as it enters its Nth rename (or the
+    exchange), for every N until one run ends; the folder holds one run's results each time."""
+    out, reference = tmp_path / "run", tmp_path / "reference"
+    assert cli.main(["train", *SMALL, "--seed", "0", "--out", str(out)]) == 0
+    assert cli.main(["train", *SMALL, "--seed", "1", "--out", str(reference)]) == 0
+    old, new = _result(out), _result(reference)
+    for syscall, when in [("renameat2", 1), *(("rename", n) for n in range(1, 10))]:
+        killed = subprocess.run(
+            ["strace", "-f", "-qq", "-o", os.devnull, "-e", f"trace={syscall}",
+             "-e", f"inject={syscall}:signal=KILL:when={when}", sys.executable, "-m", "jaxpg.cli",
+             "train", *SMALL, "--seed", "1", "--out", str(out)], capture_output=True, text=True)
+        if "ptrace" in killed.stderr:
+            pytest.skip(f"strace cannot trace here: {killed.stderr.strip()}")
+        assert _result(out) in (old, new), (syscall, when)
+        if syscall == "rename" and killed.returncode == 0:
+            break
+    assert _result(out) == new
+
+
+def test_a_second_run_into_the_same_out_is_refused_with_one_line(tmp_path):
+    out = tmp_path / "run"
+    with claimed_by_another_process(out):
+        result = _run("train", *SMALL, "--out", str(out))
+    assert result.returncode == 2 and not out.exists()
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"out: another jaxpg process is writing to {out}" in lines[0]
+
+
+@pytest.mark.parametrize("args, word", [
+    (["train", *SMALL, "--out", ""], "out: "),
+    (["sweep", *SMALL, "--seeds", "2", "--out", ""], "out: "),
+    (["evaluate", "--policy", ""], "policy: "),
+    (["render", "--policy", "", "--out", "cart.gif"], "policy: "),
+])
+def test_an_empty_path_is_refused_with_one_line(tmp_path, monkeypatch, capsys, args, word):
+    checkpoint.save(tmp_path, policies.init_network(jax.random.PRNGKey(0), TrainConfig().network),
+                    TrainConfig())  # what an empty path would have read: the working directory's
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(args) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and word in lines[0] and "empty path" in lines[0]
+    assert [p.name for p in tmp_path.iterdir()] == [checkpoint.FILENAME]
+
+
+@pytest.mark.parametrize("value", ["", "relative/cache"])
+def test_an_empty_or_relative_xdg_cache_home_is_ignored(tmp_path, monkeypatch, value):
+    """The XDG base directory specification: such values are ignored, for ~/.cache."""
+    monkeypatch.setenv("XDG_CACHE_HOME", value)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.chdir(tmp_path)
+    previous = jax.config.jax_compilation_cache_dir
+    try:
+        cli._enable_compilation_cache(False, whole_programs=True)
+        assert executables._directory == tmp_path / "home/.cache/jaxpg/programs"
+        cli._enable_compilation_cache(False)
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "home/.cache/jaxpg/xla")
+    finally:
+        executables.disable()
+        jax.config.update("jax_compilation_cache_dir", previous)
+        compilation_cache.reset_cache()
+    for folder in ("home/.cache", "home/.cache/jaxpg", "home/.cache/jaxpg/xla"):
+        assert stat.S_IMODE((tmp_path / folder).stat().st_mode) == 0o700
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["home"]
+
+
+def test_render_writes_a_file_of_a_long_name(tmp_path):
+    path = tmp_path / ("c" * 236 + ".gif")  # 240 bytes: the temporary name must be cut to fit
+    assert cli.main(["render", "--out", str(path), "--max-steps", "10"]) == 0
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]
