@@ -1,4 +1,4 @@
-"""The `jaxpg` command: train | sweep | evaluate | render | conformance | reproduce.
+"""The `jaxpg` command: train | sweep | evaluate | render | compare | conformance | reproduce.
 
 Every argument is checked before anything compiles; a bad one ends the command with status 2 and
 one line on stderr, never a traceback.
@@ -197,7 +197,7 @@ def _join_processes(args):
 
 def cmd_sweep(args):
     writes_results = _join_processes(args)  # first: it must come before JAX computes anything
-    from jaxpg import checkpoint, plots, results
+    from jaxpg import checkpoint, plots, report, results
     from jaxpg.sweep import expand_grid, sweep
 
     if args.seeds < 1:
@@ -214,7 +214,7 @@ def cmd_sweep(args):
     if not writes_results:
         return
     s = swept.summary
-    labels = [f"lr={g['learning_rate']:g}, discount={g['discount']:g}" for g in swept.grid]
+    labels = [report.setting_label(g) for g in swept.grid]
     with results.staged(out) as stage:
         np.savez_compressed(stage / "metrics.npz", seeds=swept.seeds,
                             learning_rate=[g["learning_rate"] for g in swept.grid],
@@ -229,6 +229,7 @@ def cmd_sweep(args):
             "first_solved_iteration": s.first_solved.ravel(),
         })
         results.write_json(stage / "summary.json", {
+            "format": report.SWEEP_FORMAT,
             "config": checkpoint.config_to_dict(config), "seeds": args.seeds, "seconds": seconds,
             "grid": swept.grid, "fraction_solved": s.fraction_solved,
             "median_last_10_mean_return": np.median(s.final_return, axis=1),
@@ -239,6 +240,20 @@ def cmd_sweep(args):
     for label, solved, final in zip(labels, s.fraction_solved, np.median(s.final_return, axis=1)):
         print(f"{label}: median last-10 mean return {final:.1f}, solved {solved:.0%} of {args.seeds} seeds")
     print(f"{s.final_return.size} runs in {seconds:.1f} s; wrote {out}/: metrics.npz, runs.csv, summary.json, sweep.png")
+    if args.seeds < 2:
+        print("no comparison report: its confidence intervals need at least 2 seeds")
+        return
+    # Written after the sweep's own files, from them: a failing report never costs the runs.
+    print(report.format_report(report.write([out], out)))
+    print(f"wrote {out}/: {', '.join((report.COMPARISON_FILE, *report.PLOT_FILES))}")
+
+
+def cmd_compare(args):
+    from jaxpg import report
+
+    comparison = report.write(args.folders, args.out, args.confidence, args.reps, args.seed)
+    print(report.format_report(comparison))
+    print(f"wrote {args.out}/: {', '.join((report.COMPARISON_FILE, *report.PLOT_FILES))}")
 
 
 def cmd_evaluate(args):
@@ -349,6 +364,14 @@ def build_parser():
     p.add_argument("--max-steps", type=int, default=200)
     p.add_argument("--env", default="CartPole-v1", help="CartPole-v1 or CartPole-v0")
     p.set_defaults(handler=cmd_render)
+
+    p = commands.add_parser("compare", help="compare the settings of sweep folders, with confidence intervals")
+    p.add_argument("folders", nargs="+", metavar="DIR", help="folders written by jaxpg sweep --out")
+    p.add_argument("--out", default="runs/compare", help="output directory (default %(default)s)")
+    p.add_argument("--confidence", type=float, default=0.95, help="interval coverage (default %(default)s)")
+    p.add_argument("--reps", type=int, default=2000, help="bootstrap resamples (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="seeds the bootstrap (default %(default)s)")
+    p.set_defaults(handler=cmd_compare)
 
     p = commands.add_parser("conformance", help="compare jaxpg with Gymnasium's CartPole step by step")
     p.add_argument("--episodes", type=int, default=100, help="episodes per variant (default %(default)s)")

@@ -1,4 +1,4 @@
-"""Learning curves, sweep summaries and throughput charts, written as image files.
+"""Learning curves, sweep summaries, throughput charts and comparisons, written as image files.
 
 matplotlib is imported inside each function, so that importing jaxpg stays light. Figures are
 drawn with `matplotlib.figure.Figure` and its Agg canvas, never through pyplot: no global state and
@@ -148,4 +148,158 @@ def throughput_chart(rows, path, title, xlabel="N (environments or seeds)"):
     ax.set_title(title)
     ax.grid(alpha=0.3, which="both")
     ax.legend()
+    return _save(fig, path)
+
+
+# --- Comparing settings (`jaxpg.stats`) --------------------------------------------------------
+
+
+def _check_alike(labels, dims, **arrays):
+    """The arrays as floats, all of the first one's shape, with one label per row of it.
+
+    Args:
+      labels: the settings' names, one per row.
+      dims: the names of the dimensions expected, e.g. "GI" for `[G, I]`.
+      **arrays: the arrays by the names of their arguments, the first one setting the shape.
+    """
+    (first_name, first), *others = arrays.items()
+    first = np.asarray(first, dtype=float)
+    if first.ndim != len(dims) or first.size == 0:
+        raise ValueError(f"{first_name}: expected shape [{', '.join(dims)}], got {first.shape}")
+    checked = [first]
+    for name, array in others:
+        array = np.asarray(array, dtype=float)
+        if array.shape != first.shape:
+            raise ValueError(f"{name}: expected shape {first.shape} (as {first_name}), got {array.shape}")
+        checked.append(array)
+    if len(labels) != first.shape[0]:
+        raise ValueError(f"labels: expected {first.shape[0]} labels, got {len(labels)}")
+    return checked
+
+
+def _banded_lines(ax, x, estimate, low, high, labels):
+    for g, label in enumerate(labels):
+        (line,) = ax.plot(x, estimate[g], label=label)
+        ax.fill_between(x, low[g], high[g], color=line.get_color(), alpha=0.2)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+
+
+def aggregate_intervals(labels, estimates, path, xlabel="score"):
+    """Plots each setting's aggregates as a point within its confidence interval, a panel for each.
+
+    Args:
+      labels: G names of the settings.
+      estimates: `{name: (estimate [G], low [G], high [G])}`, e.g. `{"IQM": ..., "mean": ...}`.
+      path: the image file to write.
+      xlabel: what the scores are.
+
+    Returns:
+      The `pathlib.Path` written.
+    """
+    labels = list(labels)
+    if not estimates:
+        raise ValueError("estimates: nothing to plot")
+    checked = {name: _check_alike(labels, "G",
+                                  **{f"estimates[{name!r}][{k}]": a for k, a in enumerate(triple)})
+               for name, triple in estimates.items()}
+    fig = _figure(FIGSIZE)
+    axes = np.atleast_1d(fig.subplots(1, len(checked), sharey=True))
+    rows = np.arange(len(labels))
+    for ax, (name, (estimate, low, high)) in zip(axes, checked.items()):
+        ax.hlines(rows, low, high, linewidth=8, alpha=0.4, color=[f"C{g}" for g in rows])
+        ax.vlines(estimate, rows - 0.3, rows + 0.3, color="black", linewidth=2)
+        ax.set_title(name)
+        ax.set_xlabel(xlabel)
+        ax.grid(alpha=0.3, axis="x")
+    axes[0].set_yticks(rows, labels, fontsize="small")
+    axes[0].invert_yaxis()  # the first setting on top
+    return _save(fig, path)
+
+
+def performance_profiles(taus, fraction, low, high, labels, path, xlabel="score"):
+    """Plots the fraction of runs scoring above tau against tau, with a band, for each setting.
+
+    Args:
+      taus: `[P]` thresholds.
+      fraction: `[G, P]` fraction of a setting's runs scoring above each threshold.
+      low: `[G, P]` lower confidence bound.
+      high: `[G, P]` upper confidence bound.
+      labels: G names of the settings.
+      path: the image file to write.
+      xlabel: what the scores are.
+
+    Returns:
+      The `pathlib.Path` written.
+    """
+    fraction, low, high = _check_alike(list(labels), "GP", fraction=fraction, low=low, high=high)
+    taus = np.asarray(taus, dtype=float)
+    if taus.shape != fraction.shape[1:]:
+        raise ValueError(f"taus: expected shape {fraction.shape[1:]} (fraction's columns), got {taus.shape}")
+    fig = _figure(FIGSIZE)
+    ax = fig.add_subplot()
+    _banded_lines(ax, taus, fraction, low, high, labels)
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_xlabel(f"{xlabel} (tau)")
+    ax.set_ylabel("fraction of runs with score > tau")
+    return _save(fig, path)
+
+
+def iqm_curves(iterations, iqm, low, high, labels, path, solved_return=None):
+    """Plots the IQM over runs per iteration, with its confidence band, for each setting.
+
+    Args:
+      iterations: `[I]` the iterations the IQMs are of.
+      iqm: `[G, I]` IQM over a setting's runs of each iteration's mean return.
+      low: `[G, I]` lower confidence bound.
+      high: `[G, I]` upper confidence bound.
+      labels: G names of the settings.
+      path: the image file to write.
+      solved_return: optional return that counts as solved, drawn as a dashed line.
+
+    Returns:
+      The `pathlib.Path` written.
+    """
+    iqm, low, high = _check_alike(list(labels), "GI", iqm=iqm, low=low, high=high)
+    iterations = np.asarray(iterations)
+    if iterations.shape != iqm.shape[1:]:
+        raise ValueError(f"iterations: expected shape {iqm.shape[1:]} (iqm's columns), got {iterations.shape}")
+    fig = _figure(FIGSIZE)
+    ax = fig.add_subplot()
+    if solved_return is not None:
+        ax.axhline(solved_return, color="black", linestyle="--", linewidth=1,
+                   label=f"solved ({solved_return:g})")
+    _banded_lines(ax, iterations, iqm, low, high, labels)
+    ax.xaxis.get_major_locator().set_params(integer=True)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("IQM of the mean return (CI band)")
+    return _save(fig, path)
+
+
+def improvement_heatmap(probability, labels, path):
+    """Plots P(row's setting scores above column's) for every pair of settings, values written in.
+
+    Args:
+      probability: `[G, G]` probabilities of improvement, e.g. `stats.improvement_matrix(...)[0]`.
+      labels: G names of the settings.
+      path: the image file to write.
+
+    Returns:
+      The `pathlib.Path` written.
+    """
+    (probability,) = _check_alike(list(labels), "GG", probability=probability)
+    if probability.shape[1] != len(labels):
+        raise ValueError(f"probability: expected shape [G, G], got {probability.shape}")
+    fig = _figure(FIGSIZE)
+    ax = fig.add_subplot()
+    image = ax.imshow(probability, cmap="RdBu", vmin=0, vmax=1)
+    fig.colorbar(image, ax=ax, label="P(row > column)")
+    for (i, j), value in np.ndenumerate(probability):
+        # Dark text on the light middle of the colour map, white on its dark ends.
+        ax.text(j, i, f"{value:.2f}", ha="center", va="center", fontsize="small",
+                color="black" if 0.2 < value < 0.8 else "white")
+    ticks = np.arange(len(labels))
+    ax.set_xticks(ticks, labels, rotation=30, ha="right", fontsize="small")
+    ax.set_yticks(ticks, labels, fontsize="small")
+    ax.set_title("probability of improvement")
     return _save(fig, path)

@@ -22,15 +22,31 @@ SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as 
 
 
 class Summary(NamedTuple):
-    """Statistics across seeds, per grid setting G, over iterations I."""
+    """Statistics across seeds, per grid setting G, over iterations I (`summarize`).
 
-    median: np.ndarray  # [G, I] median over seeds of the iteration's mean return
-    q25: np.ndarray  # [G, I] first quartile
-    q75: np.ndarray  # [G, I] third quartile
-    final_return: np.ndarray  # [G, S] mean return over the last SOLVED_WINDOW iterations
-    fraction_solved: np.ndarray  # [G] share of seeds whose final_return reaches solved_return
-    first_solved: np.ndarray  # [G, S] first iteration whose trailing-window mean reaches it; -1 never
-    solved_by: np.ndarray  # [G, I] share of seeds solved at or before each iteration
+    With r[g, s, i] the mean episode return of seed s under setting g at iteration i (0-based,
+    `Metrics.mean_return`), W = min(SOLVED_WINDOW, I) and T = `TrainConfig.solved_return`:
+
+    - median, q25, q75 [g, i]: `np.percentile(r[g, :, i], 50 | 25 | 75)` over the S seeds
+      (linear interpolation between seeds).
+    - final_return [g, s] = (r[g, s, I-W] + ... + r[g, s, I-1]) / W, the mean of the last W.
+    - fraction_solved [g] = #{s : final_return[g, s] >= T} / S.
+    - first_solved [g, s]: the first i >= W - 1 whose trailing mean
+      m[g, s, i] = (r[g, s, i-W+1] + ... + r[g, s, i]) / W is >= T; -1 if there is none.
+    - solved_by [g, i] = #{s : 0 <= first_solved[g, s] <= i} / S, the seeds solved by i.
+      solved_by[g, I-1] can exceed fraction_solved[g]: a seed that reached T and fell back
+      counts there, not in fraction_solved.
+
+    For comparing settings with confidence intervals, see `jaxpg.stats` and `jaxpg.report`.
+    """
+
+    median: np.ndarray  # [G, I] median over seeds of r
+    q25: np.ndarray  # [G, I] first quartile over seeds of r
+    q75: np.ndarray  # [G, I] third quartile over seeds of r
+    final_return: np.ndarray  # [G, S] mean of r over the last W iterations
+    fraction_solved: np.ndarray  # [G] share of seeds with final_return >= T
+    first_solved: np.ndarray  # [G, S] first iteration whose trailing W-mean is >= T; -1 never
+    solved_by: np.ndarray  # [G, I] share of seeds with 0 <= first_solved <= i
 
 
 class SweepResult(NamedTuple):

@@ -58,3 +58,53 @@ def test_throughput_chart(tmp_path):
         plots.throughput_chart([{"impl": "x", "n": 0, "steps_per_s": 1.0}], tmp_path / "x.png", "t")
     with pytest.raises(ValueError, match=r"rows\[1\]"):
         plots.throughput_chart([rows[0], {"impl": "x"}], tmp_path / "x.png", "t")
+
+
+LABELS = [f"lr={lr}, discount=0.95" for lr in (0.001, 0.01, 0.1)]
+
+
+def test_aggregate_intervals(tmp_path):
+    estimate = np.array([20.0, 150.0, 90.0])
+    triple = (estimate, estimate - 10, estimate + 15)
+    path = plots.aggregate_intervals(LABELS, {"IQM": triple, "mean": triple}, tmp_path / "intervals.png")
+    _assert_png(path, 800, 450)
+    with pytest.raises(ValueError, match=r"^estimates\['IQM'\]\[2\]"):
+        plots.aggregate_intervals(LABELS, {"IQM": (estimate, estimate, estimate[:2])}, tmp_path / "x.png")
+    with pytest.raises(ValueError, match="^labels"):
+        plots.aggregate_intervals(LABELS[:2], {"IQM": triple}, tmp_path / "x.png")
+    with pytest.raises(ValueError, match="^estimates"):
+        plots.aggregate_intervals(LABELS, {}, tmp_path / "x.png")
+
+
+def test_performance_profiles(tmp_path):
+    taus = np.linspace(0, 500, 101)
+    fraction = np.clip(1 - taus / np.array([[100.0], [300.0], [500.0]]), 0, 1)
+    path = plots.performance_profiles(taus, fraction, fraction * 0.9, np.minimum(fraction * 1.1, 1),
+                                      LABELS, tmp_path / "profiles.png")
+    _assert_png(path, 800, 450)
+    with pytest.raises(ValueError, match="^taus"):
+        plots.performance_profiles(taus[:5], fraction, fraction, fraction, LABELS, tmp_path / "x.png")
+    with pytest.raises(ValueError, match="^high"):
+        plots.performance_profiles(taus, fraction, fraction, fraction[:2], LABELS, tmp_path / "x.png")
+
+
+def test_iqm_curves(tmp_path):
+    iterations = np.arange(1, 150, 6)
+    iqm = np.linspace(10, 200, 25) * np.array([[0.3], [0.6], [1.0]])
+    path = plots.iqm_curves(iterations, iqm, iqm - 10, iqm + 10, LABELS, tmp_path / "curves.png",
+                            solved_return=195.0)
+    _assert_png(path, 800, 450)
+    with pytest.raises(ValueError, match="^iqm"):
+        plots.iqm_curves(iterations, iqm[0], iqm[0], iqm[0], ["one"], tmp_path / "x.png")
+    with pytest.raises(ValueError, match="^labels"):
+        plots.iqm_curves(iterations, iqm, iqm, iqm, LABELS[:1], tmp_path / "x.png")
+    with pytest.raises(ValueError, match="^iterations"):
+        plots.iqm_curves(iterations[:3], iqm, iqm, iqm, LABELS, tmp_path / "x.png")
+
+
+def test_improvement_heatmap(tmp_path):
+    probability = np.array([[0.5, 0.1, 0.3], [0.9, 0.5, 0.7], [0.7, 0.3, 0.5]])
+    path = plots.improvement_heatmap(probability, LABELS, tmp_path / "improvement.png")
+    _assert_png(path, 800, 450)
+    with pytest.raises(ValueError, match="^probability"):
+        plots.improvement_heatmap(probability[:, :2], LABELS, tmp_path / "x.png")

@@ -1,0 +1,305 @@
+"""A comparison report of sweep folders: how each setting scores, and how sure the ranking is.
+
+It reads folders as `jaxpg sweep --out DIR` writes them (`summary.json`, `metrics.npz`). Every
+setting of every folder is a unit of the comparison; the folders must share one configuration but
+for the grid fields (learning rate, discount) and their seeds, and are never merged otherwise. Each
+run's score is its held-out evaluation return where every folder has them (`eval_returns`,
+`[G, S, N]`, averaged over the N episodes), otherwise its training mean return over the last
+`SOLVED_WINDOW` iterations; the report says which.
+"""
+
+import functools
+import json
+import pathlib
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxpg import plots, results, stats
+from jaxpg.sweep import SOLVED_WINDOW
+
+SWEEP_FORMAT = "jaxpg-sweep-1"  # summary.json's "format": the folders this version writes and reads
+GRID_FIELDS = ("learning_rate", "discount")  # what a setting of jaxpg sweep's folders sets
+COMPARISON_FORMAT = "jaxpg-comparison-1"
+COMPARISON_FILE = "comparison.json"
+PLOT_FILES = ("aggregate_intervals.png", "performance_profiles.png", "iqm_curves.png",
+              "improvement.png")
+_AGGREGATES = ("iqm", "mean", "median", "optimality_gap")
+# Iterations a curve's band is computed at, evenly spaced with the first and last: the bootstrap's
+# cost grows with them, and a plot needs no more.
+_CURVE_POINTS = 50
+
+
+class Sweep(NamedTuple):
+    """The runs of one sweep folder, as the report needs them."""
+
+    folder: str  # as the user named it
+    config: dict  # summary.json's config
+    settings: list  # G dicts {"learning_rate": ..., "discount": ...}
+    scores: np.ndarray  # [G, S] one score per run
+    curves: np.ndarray  # [G, S, I] each run's mean return per iteration
+    score: str  # what the scores are, in words
+
+
+class _Unit(NamedTuple):
+    """One setting of one folder: what the comparison compares."""
+
+    label: str
+    folder: str
+    setting: dict  # {"learning_rate": ..., "discount": ...}
+    scores: np.ndarray  # [S]
+    curves: np.ndarray  # [S, I]
+
+
+def setting_label(setting: dict) -> str:
+    """A grid setting in words, e.g. "lr=0.01, discount=0.95"."""
+    return f"lr={setting['learning_rate']:g}, discount={setting['discount']:g}"
+
+
+# --- Reading ------------------------------------------------------------------------------------
+
+
+def load_sweep(folder: str | pathlib.Path) -> Sweep:
+    """Reads a folder written by `jaxpg sweep --out`.
+
+    Args:
+      folder: the folder.
+
+    Returns:
+      `Sweep` with `[G, S]` scores and `[G, S, I]` curves.
+    """
+    path = pathlib.Path(folder)
+    if not path.is_dir():
+        raise ValueError(f"{folder}: no such folder")
+    if not any(path.iterdir()):
+        raise ValueError(f"{folder}: empty; expected a folder written by jaxpg sweep --out")
+    summary = _read_summary(path, folder)
+    if summary.get("format") != SWEEP_FORMAT:
+        found = "no format marker" if "format" not in summary else f"format {summary['format']!r}"
+        raise ValueError(f"{folder}: written by another version of jaxpg ({found}, this version reads "
+                         f"{SWEEP_FORMAT!r}); run the sweep again")
+    if not (path / "metrics.npz").is_file():
+        raise ValueError(f"{folder}: no metrics.npz; expected a folder written by jaxpg sweep --out")
+    with np.load(path / "metrics.npz") as npz:
+        missing = [name for name in ("mean_return", *GRID_FIELDS) if name not in npz]
+        if missing:
+            raise ValueError(f"{folder}: metrics.npz lacks {', '.join(missing)}; run the sweep again")
+        curves = np.asarray(npz["mean_return"], dtype=np.float64)
+        settings = [{name: float(npz[name][g]) for name in GRID_FIELDS} for g in range(curves.shape[0])]
+        held_out = np.asarray(npz["eval_returns"], np.float64) if "eval_returns" in npz else None
+    if held_out is None:
+        window = min(SOLVED_WINDOW, curves.shape[-1])
+        scores = curves[..., -window:].mean(axis=-1)
+        score = f"training return: each run's mean return over its last {window} iterations"
+    elif held_out.ndim == 3 and held_out.shape[:2] == curves.shape[:2]:
+        scores = held_out.mean(axis=-1)
+        score = (f"held-out evaluation return: each run's mean return over its {held_out.shape[-1]} "
+                 f"evaluation episodes")
+    else:
+        raise ValueError(f"{folder}: eval_returns of shape {held_out.shape}, expected "
+                         f"[G, S, N] with [G, S] = {list(curves.shape[:2])}")
+    return Sweep(str(folder), summary["config"], settings, scores, curves, score)
+
+
+def _read_summary(path, folder):
+    try:
+        summary = json.loads((path / "summary.json").read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{folder}: no summary.json; expected a folder written by jaxpg sweep --out")
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{folder}: summary.json is not valid JSON ({error})")
+    if not isinstance(summary, dict) or not isinstance(summary.get("config"), dict):
+        raise ValueError(f"{folder}: summary.json holds no sweep config; run the sweep again")
+    return summary
+
+
+def check_comparable(sweeps: Sequence[Sweep]) -> None:
+    """Raises a ValueError naming what differs unless the sweeps may be compared setting by setting.
+
+    Their configs must be equal but for the grid fields, and their scores of one kind.
+    """
+    first = sweeps[0]
+    for other in sweeps[1:]:
+        keys = sorted((set(first.config) | set(other.config)) - set(GRID_FIELDS))
+        differ = [f"{key} ({first.config.get(key)} against {other.config.get(key)})"
+                  for key in keys if first.config.get(key) != other.config.get(key)]
+        if differ:
+            raise ValueError(f"folders: {first.folder} and {other.folder} differ in {', '.join(differ)}; "
+                             f"only learning rates, discounts and seeds may differ")
+        if other.score != first.score:
+            raise ValueError(f"folders: {first.folder} and {other.folder} score their runs differently "
+                             f"({first.score}; {other.score}); compare like with like")
+
+
+# --- Comparing ----------------------------------------------------------------------------------
+
+
+def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, reps: int = 2000,
+            seed: int = 0) -> dict:
+    """The comparison of every setting of the sweep folders with every other.
+
+    Args:
+      folders: folders written by `jaxpg sweep --out`, of one config.
+      confidence: the coverage of every interval, in (0, 1).
+      reps: bootstrap resamples per interval.
+      seed: seeds every bootstrap, so the report is reproducible.
+
+    Returns:
+      A dict, as `comparison.json` holds it: "settings" (G entries: label, folder, grid values,
+      runs, and each aggregate of `_AGGREGATES` as {"estimate", "low", "high"}),
+      "probability_of_improvement" (`[G, G]` "probability", "low", "high": row over column),
+      "seeds_needed" (None for one setting), "iqm_curves" (`[G, I']` at I' <= `_CURVE_POINTS`
+      iterations), "performance_profiles" (`[G, P]`), and what was compared and how.
+    """
+    if not folders:
+        raise ValueError("folders: give at least one sweep folder")
+    if len(set(map(str, folders))) < len(folders):
+        raise ValueError("folders: a folder is given more than once")
+    sweeps = [load_sweep(folder) for folder in folders]
+    check_comparable(sweeps)
+    units = _units(sweeps)
+    scores = [unit.scores for unit in units]
+    labels = [unit.label for unit in units]
+    solved_return = float(sweeps[0].config["solved_return"])
+    interval = dict(confidence=confidence, reps=reps, seed=seed)
+    statistics = dict(zip(_AGGREGATES, (stats.iqm, stats.mean, stats.median,
+                                         functools.partial(stats.optimality_gap, target=solved_return))))
+    settings = [
+        {"label": unit.label, "folder": unit.folder, **unit.setting, "runs": unit.scores.size,
+         **{name: _estimate(f(unit.scores), stats.bootstrap_ci(unit.scores, f, **interval))
+            for name, f in statistics.items()}}
+        for unit in units
+    ]
+    taus = np.linspace(min(map(np.min, scores)), max(map(np.max, scores)), stats.PROFILE_POINTS)
+    return {
+        "format": COMPARISON_FORMAT,
+        "folders": [sweep.folder for sweep in sweeps],
+        "score": sweeps[0].score,
+        "solved_return": solved_return,
+        **interval,
+        "settings": settings,
+        "probability_of_improvement": stats.improvement_matrix(scores, **interval)._asdict(),
+        "seeds_needed": _seeds_needed(scores, labels, interval),
+        "iqm_curves": _curves([unit.curves for unit in units], interval),
+        "performance_profiles": _bands(
+            [stats.performance_profile(x, taus, **interval) for x in scores], "tau"),
+    }
+
+
+def _units(sweeps):
+    """Every setting of every sweep, labelled with its folder where there are several."""
+    units = []
+    for sweep in sweeps:
+        for setting, scores, curves in zip(sweep.settings, sweep.scores, sweep.curves):
+            label = setting_label(setting) if len(sweeps) == 1 else f"{sweep.folder}: {setting_label(setting)}"
+            if scores.size < 2:
+                raise ValueError(f"{sweep.folder}: {label} has {scores.size} run; a comparison needs "
+                                 f"at least 2 seeds per setting")
+            units.append(_Unit(label, sweep.folder, setting, scores, curves))
+    return units
+
+
+def _estimate(estimate, interval):
+    return {"estimate": float(estimate), "low": interval[0], "high": interval[1]}
+
+
+def _seeds_needed(scores, labels, interval):
+    if len(scores) < 2:
+        return None
+    estimate = stats.seeds_needed(scores, **interval)
+    return {**estimate._asdict(), "best": labels[estimate.best], "second": labels[estimate.second]}
+
+
+def _curves(curves, interval):
+    """The IQM curves with bands of every setting's `[S, I]` curves, at up to `_CURVE_POINTS` iterations."""
+    columns = np.unique(np.linspace(0, curves[0].shape[1] - 1, _CURVE_POINTS).round().astype(int))
+    return _bands([stats.iqm_curve(c[:, columns], columns + 1, **interval) for c in curves], "iteration")
+
+
+def _bands(bands, x_name):
+    """`stats.Band`s of every setting as one `{x_name: [P], "estimate": [G, P], ...}`."""
+    return {x_name: bands[0].x, **{field: np.stack([getattr(b, field) for b in bands])
+                                   for field in ("estimate", "low", "high")}}
+
+
+# --- Writing ------------------------------------------------------------------------------------
+
+
+def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confidence: float = 0.95,
+          reps: int = 2000, seed: int = 0) -> dict:
+    """Compares the folders and writes `comparison.json` and the plots of `PLOT_FILES` into `out`.
+
+    Args:
+      folders: folders written by `jaxpg sweep --out`, of one config.
+      out: the output folder (created if missing); the files replace those of the same names.
+      confidence: the coverage of every interval, in (0, 1).
+      reps: bootstrap resamples per interval.
+      seed: seeds every bootstrap.
+
+    Returns:
+      The comparison, as `compare` returns it.
+    """
+    out = results.check_out_dir(out)
+    comparison = compare(folders, confidence, reps, seed)
+    labels = [setting["label"] for setting in comparison["settings"]]
+    aggregates = {name: [np.array([s[key][part] for s in comparison["settings"]])
+                         for part in ("estimate", "low", "high")]
+                  for name, key in (("IQM", "iqm"), ("mean", "mean"))}
+    curves, profiles = comparison["iqm_curves"], comparison["performance_profiles"]
+    with results.staged(out) as stage:
+        text = json.dumps(results.to_json(comparison), indent=2, allow_nan=False)
+        (stage / COMPARISON_FILE).write_text(text + "\n")
+        plots.aggregate_intervals(labels, aggregates, stage / PLOT_FILES[0], xlabel="return")
+        plots.performance_profiles(profiles["tau"], profiles["estimate"], profiles["low"],
+                                   profiles["high"], labels, stage / PLOT_FILES[1], xlabel="return")
+        plots.iqm_curves(curves["iteration"], curves["estimate"], curves["low"], curves["high"], labels,
+                         stage / PLOT_FILES[2], solved_return=comparison["solved_return"])
+        plots.improvement_heatmap(comparison["probability_of_improvement"]["probability"], labels,
+                                  stage / PLOT_FILES[3])
+    return comparison
+
+
+def format_report(comparison: dict) -> str:
+    """The comparison as text: the score used, a table of IQM and mean with intervals, the
+    P(improvement) matrix and how many seeds would tell the two best settings apart.
+
+    Args:
+      comparison: as `compare` returns it.
+
+    Returns:
+      Lines joined by newlines, without a final one.
+    """
+    settings = comparison["settings"]
+    ci = f"{comparison['confidence']:.0%} CI"
+    width = max(len("setting"), *(len(s["label"]) for s in settings))
+    lines = [f"score: {comparison['score']}",
+             f"{'':4}{'setting':<{width}}  {'runs':>5}  {'IQM [' + ci + ']':<24}  mean [{ci}]"]
+    for g, s in enumerate(settings, 1):
+        lines.append(f"{g:>3} {s['label']:<{width}}  {s['runs']:>5}  {_with_interval(**s['iqm']):<24}  "
+                     f"{_with_interval(**s['mean'])}")
+    matrix = comparison["probability_of_improvement"]
+    lines.append(f"P(row's setting scores above column's) [{ci}]:")
+    cells = [[_with_interval(matrix["probability"][i][j], matrix["low"][i][j], matrix["high"][i][j], ".2f")
+              if i != j else "-" for j in range(len(settings))] for i in range(len(settings))]
+    lines.append(f"{'':4}" + "  ".join(f"{j:<18}" for j in range(1, len(settings) + 1)).rstrip())
+    lines += [f"{i:>3} " + "  ".join(f"{cell:<18}" for cell in row).rstrip() for i, row in enumerate(cells, 1)]
+    lines.append(_seeds_guidance(comparison["seeds_needed"], ci))
+    return "\n".join(lines)
+
+
+def _with_interval(estimate, low, high, spec=".1f"):
+    return f"{estimate:{spec}} [{low:{spec}}, {high:{spec}}]"
+
+
+def _seeds_guidance(needed, ci):
+    if needed is None:
+        return "seeds: one setting, nothing to compare"
+    pair = f"{needed['best']} against {needed['second']}"
+    difference = _with_interval(needed["difference"], needed["low"], needed["high"])
+    if needed["seeds"] is None:
+        return f"seeds: the two best settings, {pair}, have the same IQM; no number of seeds tells them apart"
+    verdict = "excludes" if needed["low"] > 0 else "includes"
+    return (f"seeds: the two best settings by IQM, {pair}, differ by {difference} ({ci}), which {verdict} 0; "
+            f"with about {needed['seeds']} seeds per setting it would exclude 0 (if the interval narrows "
+            f"as 1/sqrt(seeds))")
