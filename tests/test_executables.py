@@ -2,6 +2,10 @@
 process without tracing or compiling."""
 
 import functools
+import logging
+import pathlib
+import pickle
+import stat
 
 import chex
 import jax
@@ -157,3 +161,79 @@ def test_python_numbers_among_the_arguments_call_the_jitted_function():
     state = program.init(*args)
     _, metrics = program.iterate(state, args[1], 2)
     assert np.asarray(metrics).shape[:2] == (reinforce.ITERATIONS_PER_CALL, len(reinforce.Metrics._fields))
+
+
+class _Planted:
+    """A pickle that, unpickled, writes the file `marker`."""
+
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        return pathlib.Path.write_text, (self.marker, "the cache ran code")
+
+
+def test_a_pickle_planted_in_every_file_never_runs(store, tmp_path_factory):
+    expected = _train([11])
+    marker = tmp_path_factory.mktemp("planted") / "ran"
+    planted = pickle.dumps(_Planted(marker))
+    files = sorted(store.iterdir())
+    for path in files:
+        path.write_bytes(planted)
+    _new_process()
+    chex.assert_trees_all_equal(_train([11]), expected)
+    assert not marker.exists()
+    assert sorted(store.iterdir()) == files and all(p.read_bytes() != planted for p in files)
+
+
+def test_a_file_of_another_program_is_warned_about_once_compiled_again_and_replaced(
+        store, caplog, monkeypatch):
+    expected = _train([12])
+    init, iterate = sorted(store.iterdir())
+    swapped = {init: iterate.read_bytes(), iterate: init.read_bytes()}
+    for path, data in swapped.items():
+        path.write_bytes(data)
+    _new_process()
+    with caplog.at_level(logging.WARNING, logger=executables.__name__):
+        chex.assert_trees_all_equal(_train([12]), expected)
+    assert sorted(r.getMessage().split(" (")[0] for r in caplog.records) == [
+        f"could not load {init}", f"could not load {iterate}"]
+    assert all("another program" in r.getMessage() for r in caplog.records)
+    _new_process()  # replaced: loaded now, not compiled
+    monkeypatch.setattr(jax.stages.Lowered, "compile", _not_again)
+    chex.assert_trees_all_equal(_train([12]), expected)
+
+
+def test_cache_directories_are_created_for_the_user_alone(tmp_path):
+    directory = tmp_path / "cache" / "jaxpg" / "programs"
+    executables.enable(directory)
+    _new_process()
+    try:
+        _train([13])
+    finally:
+        executables.disable()
+        _new_process()
+    assert len(list(directory.iterdir())) == 2
+    for folder in (tmp_path / "cache", tmp_path / "cache" / "jaxpg", directory):
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+
+
+def test_a_directory_that_others_can_write_is_not_used(tmp_path, caplog):
+    shared = tmp_path / "shared"
+    shared.mkdir(mode=0o777)
+    shared.chmod(0o777)  # (mkdir's mode is masked by the umask)
+    with caplog.at_level(logging.WARNING, logger=executables.__name__):
+        executables.enable(shared)
+    assert [r.getMessage() for r in caplog.records] == [
+        f"keeping no compiled programs in {shared}: others can write it"]
+    _new_process()
+    _train([14])
+    assert list(shared.iterdir()) == []
+
+
+def test_temporary_files_that_killed_processes_left_are_removed(tmp_path):
+    left = tmp_path / ".init-0123.xla.0123456789ab.tmp.xla"
+    left.write_bytes(b"half a program")
+    executables.enable(tmp_path)
+    executables.disable()
+    assert list(tmp_path.iterdir()) == []
