@@ -17,6 +17,9 @@ For N environments stepped together, with auto-reset:
   drawn with one numpy call per step, outside the timed region: only `env.step` is timed.
 - gymnasium (N = 1 only): `gymnasium.make("CartPole-v1")`, reset when an episode ends. Actions are
   drawn in blocks beforehand; the timed loop holds `step` and the resets.
+- jaxpg-gym-vector and jaxpg-gym (N = 1 only): jaxpg's Gymnasium adapters (`jaxpg.gym`), timed as
+  the two above: `gymnasium.make_vec("jaxpg/CartPole-v1", N)` and
+  `gymnasium.make("jaxpg/CartPole-v1")`.
 
     python benchmarks/env_throughput.py            # full run, ~1 s per measurement
     python benchmarks/env_throughput.py --quick    # a quick check that everything runs
@@ -43,7 +46,10 @@ from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv  # noqa: E
 
 from jaxpg import cartpole, rollout  # noqa: E402
 
-IMPLS = ("jaxpg", "jaxpg-sharded", "gymnax", "gymnasium-vector", "gymnasium")
+IMPLS = ("jaxpg", "jaxpg-sharded", "gymnax", "gymnasium-vector", "gymnasium", "jaxpg-gym-vector",
+         "jaxpg-gym")
+SINGLE = ("gymnasium", "jaxpg-gym")  # one environment: N = 1 only
+ADAPTERS = {"jaxpg-gym-vector": "gymnasium-vector", "jaxpg-gym": "gymnasium"}  # and their peers
 MAX_SCAN_STEPS = 2**22  # bounds the [T, 2] array of step keys
 GYMNAX_HINT = (
     "gymnax 1.0.1 pins gymnasium<1.4 (and imports six without declaring it); see "
@@ -153,9 +159,10 @@ def _row(num_envs, num_steps, timing, **extra):
     }
 
 
-def vector_env_block(num_envs, block=16):
-    """Gymnasium's CartPoleVectorEnv: a function stepping it `block` times, timing only `step`."""
-    env = CartPoleVectorEnv(num_envs=num_envs)
+def vector_env_block(env, block=16):
+    """A vector env of N environments (Gymnasium's CartPoleVectorEnv, or jaxpg's): a function
+    stepping it `block` times, timing only `step`."""
+    num_envs = env.num_envs
     env.reset(seed=0)
     rng = np.random.default_rng(0)
 
@@ -171,9 +178,9 @@ def vector_env_block(num_envs, block=16):
     return step_block, block
 
 
-def single_env_block(block=1000):
-    """One `gymnasium.make("CartPole-v1")` env, reset on done: `block` steps per call."""
-    env = gym.make("CartPole-v1")
+def single_env_block(env_id, block=1000):
+    """One `gymnasium.make(env_id)` env, reset on done: `block` steps per call."""
+    env = gym.make(env_id)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
 
@@ -198,9 +205,14 @@ def measure(impl, num_envs, args, gymnax):
     if impl == "gymnax":
         return measure_jax(lambda n, t: gymnax_program(gymnax, n, t), num_envs, args)
     if impl == "gymnasium-vector":
-        return measure_loop(*vector_env_block(num_envs), num_envs=num_envs, args=args)
-    if impl == "gymnasium":
-        return measure_loop(*single_env_block(), num_envs=num_envs, args=args)
+        env = CartPoleVectorEnv(num_envs=num_envs)
+        return measure_loop(*vector_env_block(env), num_envs=num_envs, args=args)
+    if impl == "jaxpg-gym-vector":
+        env = gym.make_vec("jaxpg/CartPole-v1", num_envs)
+        return measure_loop(*vector_env_block(env), num_envs=num_envs, args=args)
+    if impl in SINGLE:
+        env_id = "CartPole-v1" if impl == "gymnasium" else "jaxpg/CartPole-v1"
+        return measure_loop(*single_env_block(env_id), num_envs=num_envs, args=args)
     raise ValueError(impl)
 
 
@@ -278,7 +290,7 @@ def main():
         if impl == "gymnax" and gymnax is None:
             continue
         for num_envs in args.sizes:
-            if impl == "gymnasium" and num_envs != 1:
+            if impl in SINGLE and num_envs != 1:
                 continue
             if impl == "jaxpg-sharded" and num_envs % jax.device_count():
                 print(f"{impl:>16}  N={num_envs:<6}  skipped: N does not split evenly over "
@@ -292,8 +304,9 @@ def main():
                "compile_s"]
     common.print_table(rows, columns, title="steps/s (median run; compile timed apart)")
     ran = {row["impl"] for row in rows}
-    summaries = [ratios(rows, ours, peer) for ours in ("jaxpg", "jaxpg-sharded")
-                 for peer in ("gymnasium-vector", "gymnax") if ours in ran and peer in ran]
+    pairs = [*((ours, peer) for ours in ("jaxpg", "jaxpg-sharded")
+               for peer in ("gymnasium-vector", "gymnax")), *ADAPTERS.items()]
+    summaries = [ratios(rows, ours, peer) for ours, peer in pairs if ours in ran and peer in ran]
     print()
     print_best(ratios(rows, "jaxpg", "jaxpg"))
     for summary in summaries:
@@ -304,6 +317,7 @@ def main():
             "jax_impls": "random actions drawn inside the compiled program (counted)",
             "gymnasium-vector": "actions drawn per step with numpy outside the timed region",
             "gymnasium": "actions drawn in blocks beforehand; resets are timed",
+            "jaxpg-gym-vector, jaxpg-gym": "timed as gymnasium-vector and gymnasium",
         },
     )
     common.write_chart(rows, path, "CartPole-v1 env steps/s (random actions)",

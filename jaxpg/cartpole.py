@@ -150,33 +150,14 @@ def step(state, action, env_params):
     check_params(env_params)
     _check_action(action)
     p = env_params
-    x, x_dot, theta, theta_dot = state.x, state.x_dot, state.theta, state.theta_dot
     force = jnp.where(action == 1, p.force_mag, -p.force_mag)
-    sintheta, costheta = sincos(theta)
-    temp = (force + p.polemass_length * jnp.square(theta_dot) * sintheta) / p.total_mass
-    thetaacc = (p.gravity * sintheta - costheta * temp) / (
-        p.length * (4.0 / 3.0 - p.masspole * jnp.square(costheta) / p.total_mass)
-    )
-    xacc = temp - p.polemass_length * thetaacc * costheta / p.total_mass
-    if p.integrator == "euler":
-        x = x + p.tau * x_dot
-        x_dot = x_dot + p.tau * xacc
-        theta = theta + p.tau * theta_dot
-        theta_dot = theta_dot + p.tau * thetaacc
-    else:
-        x_dot = x_dot + p.tau * xacc
-        x = x + p.tau * x_dot
-        theta_dot = theta_dot + p.tau * thetaacc
-        theta = theta + p.tau * theta_dot
+    xacc, thetaacc = accelerations(state.theta_dot, force, *sincos(state.theta), p)
+    x, x_dot, theta, theta_dot = integrate(
+        state.x, state.x_dot, state.theta, state.theta_dot, xacc, thetaacc, p)
     time = state.time + 1
     state = CartPoleState(x.astype(state.x.dtype), x_dot.astype(state.x.dtype),
                           theta.astype(state.x.dtype), theta_dot.astype(state.x.dtype), time)
-    terminated = (
-        (x < -p.x_threshold)
-        | (x > p.x_threshold)
-        | (theta < -p.theta_threshold_radians)
-        | (theta > p.theta_threshold_radians)
-    )
+    terminated = is_terminated(x, theta, p)
     truncated = time >= p.max_steps
     if p.sutton_barto_reward:
         reward = jnp.where(terminated, -1.0, 0.0).astype(state.x.dtype)
@@ -185,30 +166,80 @@ def step(state, action, env_params):
     return observe(state), state, reward, terminated, truncated
 
 
+# The pieces of `step` below use arithmetic operators only, so that numpy values (arrays or
+# scalars) go through the same operations in the same order: the Gymnasium adapters (`jaxpg.gym`)
+# step in numpy with them.
+
+
+def accelerations(theta_dot, force, sintheta, costheta, env_params):
+    """(xacc, thetaacc): the cart's and the pole's accelerations, in Gymnasium's operation order."""
+    p = env_params
+    temp = (force + p.polemass_length * (theta_dot * theta_dot) * sintheta) / p.total_mass
+    thetaacc = (p.gravity * sintheta - costheta * temp) / (
+        p.length * (4.0 / 3.0 - p.masspole * (costheta * costheta) / p.total_mass)
+    )
+    xacc = temp - p.polemass_length * thetaacc * costheta / p.total_mass
+    return xacc, thetaacc
+
+
+def integrate(x, x_dot, theta, theta_dot, xacc, thetaacc, env_params):
+    """(x, x_dot, theta, theta_dot) `tau` seconds later, by the integrator of `env_params`."""
+    p = env_params
+    if p.integrator == "euler":
+        return (x + p.tau * x_dot, x_dot + p.tau * xacc,
+                theta + p.tau * theta_dot, theta_dot + p.tau * thetaacc)
+    x_dot = x_dot + p.tau * xacc
+    theta_dot = theta_dot + p.tau * thetaacc
+    return x + p.tau * x_dot, x_dot, theta + p.tau * theta_dot, theta_dot
+
+
+def is_terminated(x, theta, env_params):
+    """Whether the cart left the track or the pole fell (strictly past the thresholds)."""
+    p = env_params
+    return ((x < -p.x_threshold) | (x > p.x_threshold)
+            | (theta < -p.theta_threshold_radians) | (theta > p.theta_threshold_radians))
+
+
 def sincos(theta):
     """(sin, cos) of `theta`: in float32 by vectorisable arithmetic, else `jnp.sin`, `jnp.cos`.
 
     XLA on CPU computes float32 sine and cosine with a scalar library call per element, which costs
     more than the rest of a CartPole step. This is Cephes' `sinf`/`cosf`: the angle less the nearest
-    multiple of pi/2 (subtracted in three parts, exact for |theta| < 2**15), then a polynomial on
-    [-pi/4, pi/4]. Its absolute error is below 1e-7 over |theta| < 1e5 (XLA's is 3e-8).
+    multiple of pi/2 (`reduce_angle`: subtracted in three parts, exact for |theta| < 2**15), then a
+    polynomial on [-pi/4, pi/4] (`sincos_polynomials`). Its absolute error is below 1e-7 over
+    |theta| < 1e5 (XLA's is 3e-8).
     """
     if theta.dtype != jnp.float32:
         return jnp.sin(theta), jnp.cos(theta)
-    f32 = np.float32
-    quarter_turns = jnp.round(theta * f32(2 / np.pi))
-    r = theta - quarter_turns * f32(1.5703125)
-    r = r - quarter_turns * f32(4.837512969970703125e-4)
-    r = r - quarter_turns * f32(7.54978995489188216e-8)
-    z = r * r
-    sin_r = r + r * z * (f32(-1.6666654611e-1) + z * (f32(8.3321608736e-3) + z * f32(-1.9515295891e-4)))
-    cos_r = 1 - f32(0.5) * z + z * z * (
-        f32(4.166664568298827e-2) + z * (f32(-1.388731625493765e-3) + z * f32(2.443315711809948e-5))
-    )
+    quarter_turns = jnp.round(theta * QUARTER_TURN_PER_RADIAN)
+    sin_r, cos_r = sincos_polynomials(reduce_angle(theta, quarter_turns))
     quadrant = quarter_turns.astype(jnp.int32) & 3
     sin = jax.lax.select_n(quadrant, sin_r, cos_r, -sin_r, -cos_r)
     cos = jax.lax.select_n(quadrant, cos_r, -sin_r, -cos_r, sin_r)
     return sin, cos
+
+
+_f32 = np.float32
+QUARTER_TURN_PER_RADIAN = _f32(2 / np.pi)
+_PI_2 = (_f32(1.5703125), _f32(4.837512969970703125e-4), _f32(7.54978995489188216e-8))  # sum: pi/2
+_SIN = (_f32(-1.6666654611e-1), _f32(8.3321608736e-3), _f32(-1.9515295891e-4))
+_COS = (_f32(0.5), _f32(4.166664568298827e-2), _f32(-1.388731625493765e-3),
+        _f32(2.443315711809948e-5))
+
+
+def reduce_angle(theta, quarter_turns):
+    """The float32 `theta` less `quarter_turns` quarter turns (`sincos`)."""
+    r = theta - quarter_turns * _PI_2[0]
+    r = r - quarter_turns * _PI_2[1]
+    return r - quarter_turns * _PI_2[2]
+
+
+def sincos_polynomials(r):
+    """(sin, cos) of the float32 `r` in [-pi/4, pi/4], by Cephes' polynomials (`sincos`)."""
+    z = r * r
+    sin_r = r + r * z * (_SIN[0] + z * (_SIN[1] + z * _SIN[2]))
+    cos_r = 1 - _COS[0] * z + z * z * (_COS[1] + z * (_COS[2] + z * _COS[3]))
+    return sin_r, cos_r
 
 
 def _check_action(action):

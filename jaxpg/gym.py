@@ -1,14 +1,23 @@
-"""Gymnasium `Env` and `VectorEnv` backed by jaxpg's jittable CartPole.
+"""Gymnasium `Env` and `VectorEnv` of jaxpg's CartPole, stepped in numpy at Gymnasium's speed.
 
 After `register()`, `gymnasium.make("jaxpg/CartPole-v1")` and
 `gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=N)` (also `-v0`) behave as Gymnasium's own
 `CartPole-v1` and its `CartPoleVectorEnv`: the same spaces, float32 observations, rewards,
-termination, time limits and next-step autoreset. Random numbers differ: resets draw from a JAX key
-derived from the environment's `np_random`, so `reset(seed=...)` is deterministic but does not give
-Gymnasium's initial states.
+termination, time limits and next-step autoreset, and the same initial states for the same seed
+(drawn as Gymnasium draws them, then rounded to jaxpg's float dtype).
+
+The dynamics are jaxpg's, not Gymnasium's: `cartpole.step` in jaxpg's float dtype (float32, or
+float64 under `jax_enable_x64`), its float32 sine and cosine included. The adapters run the
+pieces of `cartpole.step` (`cartpole.accelerations`, `cartpole.integrate`,
+`cartpole.reduce_angle`, `cartpole.sincos_polynomials`; `cartpole.is_terminated`'s comparisons)
+on numpy values, one rounding per operation. A step equals the compiled `cartpole.step` to its
+last bit, which XLA rounds otherwise now and then: it fuses a multiplication and an addition into
+one rounding, and divides by a number through its reciprocal (the tests bound the difference).
+One environment steps as numpy scalars and N as numpy arrays, without JAX's dispatch per call
+(`benchmarks/env_throughput.py` measures them beside Gymnasium's).
 """
 
-import functools
+from typing import NamedTuple
 
 import gymnasium
 import jax
@@ -18,29 +27,7 @@ from gymnasium.envs.classic_control import utils
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from jaxpg import cartpole, render, rollout
-
-# Compiled once per static configuration (integrator, reward scheme, number of environments);
-# the physics values are traced arguments, so changing them does not recompile.
-_step = jax.jit(cartpole.step)
-
-
-@jax.jit
-def _reset(seed, env_params):
-    return cartpole.reset(jax.random.PRNGKey(seed), env_params)
-
-
-@functools.partial(jax.jit, static_argnums=1)
-def _vector_reset(seed, num_envs, env_params):
-    key, key_reset = jax.random.split(jax.random.PRNGKey(seed))
-    obs, stream_state = rollout.stream_reset(key_reset, num_envs, env_params)
-    return key, obs, stream_state
-
-
-@jax.jit
-def _vector_step(key, stream_state, action, env_params):
-    key, key_reset = jax.random.split(key)
-    return key, *rollout.autoreset_step(key_reset, stream_state, action, env_params)
+from jaxpg import cartpole, render
 
 
 def observation_space(env_params):
@@ -61,6 +48,13 @@ def _make_params(env_params, sutton_barto_reward):
     return env_params
 
 
+def _host_params(env_params):
+    """`env_params` with any JAX array among its values as numpy: the same dtypes, so the same
+    promotions (a Python number stays one, as weakly typed in numpy as in JAX)."""
+    return jax.tree.map(lambda value: np.asarray(value) if isinstance(value, jax.Array) else value,
+                        env_params)
+
+
 def _check_render_mode(render_mode, metadata):
     if render_mode is not None and render_mode not in metadata["render_modes"]:
         raise ValueError(
@@ -69,21 +63,111 @@ def _check_render_mode(render_mode, metadata):
         )
 
 
-def _draw_seed(np_random):
-    """A JAX seed from the environment's generator, so that `reset(seed=...)` fixes it."""
-    return np.uint32(np_random.integers(2**32))
+def _float_dtype(values=None):
+    """The dtype of a state made of `values`, as `CartPoleState.from_array` makes it: their float
+    dtype (canonical: float32 without `jax_enable_x64`), or the default float dtype."""
+    dtype = values.dtype if values is not None and np.issubdtype(values.dtype, np.floating) else float
+    dtype = np.dtype(jax.dtypes.canonicalize_dtype(dtype))
+    if dtype not in (np.float32, np.float64):
+        raise ValueError(f"state: expected float32 or float64 values, got {dtype}")
+    return dtype
 
 
-def _reset_params(env_params, options):
-    """`env_params` with the reset bounds that `options` ("low", "high") may override."""
+def _initial_values(np_random, env_params, options, shape):
+    """Initial states `shape` (`(4,)` or `(4, N)`): uniform within the reset bounds, which
+    `options` ("low", "high") may set, drawn as Gymnasium's CartPole draws them."""
     low, high = utils.maybe_parse_reset_bounds(
-        options, float(env_params.reset_low), float(env_params.reset_high)
-    )
-    return env_params.replace(reset_low=low, reset_high=high)
+        options, float(env_params.reset_low), float(env_params.reset_high))
+    return np_random.uniform(low=low, high=high, size=shape).astype(_float_dtype()), (low, high)
+
+
+def _sincos(theta, small):
+    """`cartpole.sincos` in numpy: the same float32 arithmetic, or numpy's float64 sine and cosine
+    (which are XLA's on CPU, both being the C library's; the tests check it). `small`: whether
+    every |theta| <= `_SMALL_ANGLE`, as while an episode lasts."""
+    if theta.dtype is not _FLOAT32:
+        return np.sin(theta), np.cos(theta)
+    if small:
+        return cartpole.sincos_polynomials(theta)
+    quarter_turns = np.round(theta * cartpole.QUARTER_TURN_PER_RADIAN)
+    sin_r, cos_r = cartpole.sincos_polynomials(cartpole.reduce_angle(theta, quarter_turns))
+    quadrant = quarter_turns.astype(np.int32) & 3
+    return (np.choose(quadrant, (sin_r, cos_r, -sin_r, -cos_r)),
+            np.choose(quadrant, (cos_r, -sin_r, -cos_r, sin_r)))
+
+
+# Up to it, an angle rounds to no quarter turn (0.75 * 2 / pi < 0.5) and its reduction subtracts
+# zeros: the polynomials of the angle itself give the same sine and cosine, but for the sign of a
+# zero sine, which no step's result shows (the force, never zero, is added to it).
+_SMALL_ANGLE = 0.75
+_FLOAT32 = np.dtype(np.float32)
+
+
+def _step_one(values, action, env_params):
+    """`cartpole.step` of one environment: (values, terminated), values as numpy scalars."""
+    x, x_dot, theta, theta_dot = values
+    p = env_params
+    force = p.force_mag if action == 1 else -p.force_mag
+    sincos = _sincos(theta, abs(theta) <= _SMALL_ANGLE)
+    xacc, thetaacc = cartpole.accelerations(theta_dot, force, *sincos, p)
+    stepped = cartpole.integrate(x, x_dot, theta, theta_dot, xacc, thetaacc, p)
+    terminated = bool(cartpole.is_terminated(stepped[0], stepped[2], p))
+    if stepped[0].dtype is not x.dtype:  # (float64 values of the physics, a float32 state)
+        stepped = tuple(np.asarray(stepped, x.dtype))
+    return stepped, terminated
+
+
+class _Physics(NamedTuple):
+    """What a step of N environments reads of their `CartPoleParams`, for values of one dtype:
+    each number as JAX would meet it beside such arrays, as a 0-d array (by which numpy multiplies
+    an array sooner than by a Python number), and the forces and thresholds as arrays."""
+
+    gravity: np.ndarray
+    masspole: np.ndarray
+    length: np.ndarray
+    polemass_length: np.ndarray
+    total_mass: np.ndarray
+    tau: np.ndarray
+    integrator: str
+    forces: np.ndarray  # [2]: pushing left, right
+    limits: np.ndarray  # [2, 1]: x_threshold, theta_threshold_radians
+
+
+def _physics(env_params, dtype):
+    """The `_Physics` of `env_params` (`_host_params`) for values of `dtype`."""
+    p = env_params
+
+    def beside(value):  # (a Python number, weakly typed, takes the arrays' dtype)
+        return np.asarray(value, np.result_type(value, dtype))
+
+    numbers = ("gravity", "masspole", "length", "polemass_length", "total_mass", "tau")
+    return _Physics(*(beside(getattr(p, name)) for name in numbers), p.integrator,
+                    forces=np.stack([beside(-p.force_mag), beside(p.force_mag)]),
+                    limits=np.stack([beside(p.x_threshold),
+                                     beside(p.theta_threshold_radians)])[:, None])
+
+
+def _step_many(values, indices, physics):
+    """`cartpole.step` of N environments, values `[4, N]` (rows x, x_dot, theta, theta_dot):
+    (values `[4, N]`, terminated `[N]`). `indices`: the actions, 0 or 1; `physics`: from
+    `_physics`. The four rows are integrated at once, by `cartpole.integrate`'s operations."""
+    x, x_dot, theta, theta_dot = values
+    p = physics
+    sincos = _sincos(theta, (abs(theta) <= _SMALL_ANGLE).all())
+    xacc, thetaacc = cartpole.accelerations(theta_dot, p.forces[indices], *sincos, p)
+    if p.integrator == "euler":
+        stepped = values + p.tau * np.stack((x_dot, xacc, theta_dot, thetaacc))
+    else:
+        velocities = values[1::2] + p.tau * np.stack((xacc, thetaacc))
+        positions = values[::2] + p.tau * velocities
+        stepped = np.stack((positions[0], velocities[0], positions[1], velocities[1]))
+    # `cartpole.is_terminated` of x and theta at once (|v| > t is v < -t or v > t).
+    terminated = (abs(stepped[::2]) > p.limits).any(axis=0)
+    return stepped.astype(values.dtype, copy=False), terminated
 
 
 class CartPoleEnv(gymnasium.Env):
-    """One CartPole, stepped by `jaxpg.cartpole.step`; a drop-in for Gymnasium's `CartPoleEnv`.
+    """One CartPole, stepped as `jaxpg.cartpole.step`; a drop-in for Gymnasium's `CartPoleEnv`.
 
     As Gymnasium's, it never truncates by itself: `gymnasium.make` adds the `TimeLimit` wrapper
     (500 steps for v1, 200 for v0), so `env_params.max_steps` plays no part here. Stepping after
@@ -102,10 +186,11 @@ class CartPoleEnv(gymnasium.Env):
         """
         _check_render_mode(render_mode, self.metadata)
         self.env_params = _make_params(env_params, sutton_barto_reward)
+        self._params = _host_params(self.env_params)
         self.render_mode = render_mode
         self.action_space = spaces.Discrete(2)
         self.observation_space = observation_space(self.env_params)
-        self._state = None
+        self._values = None  # x, x_dot, theta, theta_dot: numpy scalars of the state's dtype
         self._steps_beyond_terminated = None
 
     @property
@@ -114,36 +199,32 @@ class CartPoleEnv(gymnasium.Env):
 
         Settable, as Gymnasium's `CartPoleEnv.state`, e.g. to start from a chosen state.
         """
-        return None if self._state is None else np.array(self._state.to_array(), np.float64)
+        return None if self._values is None else np.array(self._values, np.float64)
 
     @state.setter
     def state(self, values):
         values = np.asarray(values)
         if values.shape != (4,):
             raise ValueError(f"state: expected shape (4,), got {values.shape}")
-        self._state = cartpole.CartPoleState.from_array(values)
+        self._values = tuple(values.astype(_float_dtype(values)))
 
     def reset(self, *, seed=None, options=None):
         """Starts an episode; `options` may set the reset bounds "low" and "high"."""
         super().reset(seed=seed)
-        obs, self._state = _reset(
-            _draw_seed(self.np_random), _reset_params(self.env_params, options)
-        )
+        values, _ = _initial_values(self.np_random, self._params, options, (4,))
+        self._values = tuple(values)
         self._steps_beyond_terminated = None
-        return np.array(obs, dtype=np.float32), {}
+        return values.astype(np.float32), {}
 
     def step(self, action):
         """One step: 1 pushes right, 0 left. Returns (obs, reward, terminated, False, {})."""
-        if not self.action_space.contains(action):
+        if not (type(action) is int and 0 <= action <= 1 or self.action_space.contains(action)):
             raise ValueError(f"action: must be 0 (push left) or 1 (push right), got {action!r}")
-        if self._state is None:
+        if self._values is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
-        obs, self._state, reward, terminated, _ = _step(
-            self._state, np.int32(action), self.env_params
-        )
-        obs, reward, terminated = jax.device_get((obs, reward, terminated))
-        terminated = bool(terminated)
-        reward = float(reward)
+        self._values, terminated = _step_one(self._values, action, self._params)
+        sutton_barto = self.env_params.sutton_barto_reward
+        reward = (-1.0 if terminated else 0.0) if sutton_barto else 1.0
         if terminated:
             if self._steps_beyond_terminated is None:
                 self._steps_beyond_terminated = 0
@@ -154,8 +235,8 @@ class CartPoleEnv(gymnasium.Env):
                         "returned terminated = True; call 'reset()' first."
                     )
                 self._steps_beyond_terminated += 1
-                reward = -1.0 if self.env_params.sutton_barto_reward else 0.0
-        return np.array(obs, dtype=np.float32), reward, terminated, False, {}
+                reward = -1.0 if sutton_barto else 0.0
+        return np.array(self._values, np.float32), reward, terminated, False, {}
 
     def render(self):
         """The current frame as uint8 `[400, 600, 3]` in "rgb_array" mode."""
@@ -165,17 +246,17 @@ class CartPoleEnv(gymnasium.Env):
                 'gymnasium.make("jaxpg/CartPole-v1", render_mode="rgb_array")'
             )
             return None
-        if self._state is None:
+        if self._values is None:
             return None
-        return render.render_frame(self._state, self.env_params)
+        return render.render_frame(self.state, self.env_params)
 
 
 class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
-    """N CartPoles stepped together by `rollout.autoreset_step`; as Gymnasium's `CartPoleVectorEnv`.
+    """N CartPoles stepped together as `jaxpg.cartpole.step`; as Gymnasium's `CartPoleVectorEnv`.
 
-    Next-step autoreset: the step after an environment terminates or truncates ignores its
-    action and resets it, with reward 0 and terminated and truncated False. Truncation happens
-    after `max_episode_steps` steps.
+    Next-step autoreset, as `rollout.autoreset_step`: the step after an environment terminates or
+    truncates ignores its action and resets it, with reward 0 and terminated and truncated False.
+    Truncation happens after `max_episode_steps` steps.
     """
 
     metadata = {
@@ -209,6 +290,8 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
             env_params = env_params.replace(max_steps=max_episode_steps)
             cartpole.check_params(env_params)
         self.env_params = env_params
+        self._params = _host_params(env_params)
+        self._physics = None  # `_physics` for the values' dtype
         self.num_envs = num_envs
         self.max_episode_steps = int(env_params.max_steps)
         self.render_mode = render_mode
@@ -216,9 +299,10 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.single_observation_space = observation_space(env_params)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self._key = None
-        self._stream = None
-        self._episode_params = env_params
+        self._values = None  # [4, N] of the state's dtype
+        self._time = None  # [N] steps taken in each episode
+        self._prev_done = None  # [N] whether each environment resets at its next step
+        self._bounds = None  # the reset bounds (low, high) of the last reset
 
     @property
     def state(self):
@@ -226,50 +310,60 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
 
         Settable; setting it keeps each environment's step count and pending autoreset.
         """
-        if self._stream is None:
-            return None
-        return np.array(self._stream.env_state.to_array(), np.float64).T
+        return None if self._values is None else self._values.astype(np.float64)
 
     @state.setter
     def state(self, values):
-        if self._stream is None:
+        if self._values is None:
             raise gymnasium.error.ResetNeeded("call reset() before setting the state")
         values = np.asarray(values)
         if values.shape != (4, self.num_envs):
             raise ValueError(f"state: expected shape (4, {self.num_envs}), got {values.shape}")
-        env_state = cartpole.CartPoleState.from_array(values.T, time=self._stream.env_state.time)
-        self._stream = self._stream._replace(env_state=env_state)
+        self._set_values(values.astype(_float_dtype(values)))
+
+    def _set_values(self, values):
+        self._values = values
+        self._physics = _physics(self._params, values.dtype)
 
     def reset(self, *, seed=None, options=None):
         """Resets every environment; `options` may set the reset bounds "low" and "high"."""
         super().reset(seed=seed)
-        self._episode_params = _reset_params(self.env_params, options)
-        self._key, obs, self._stream = _vector_reset(
-            _draw_seed(self.np_random), self.num_envs, self._episode_params
-        )
-        return np.array(obs, dtype=np.float32), {}
+        values, self._bounds = _initial_values(
+            self.np_random, self._params, options, (4, self.num_envs))
+        self._set_values(values)
+        self._time = np.zeros(self.num_envs, np.int32)
+        self._prev_done = np.zeros(self.num_envs, bool)
+        return self._values.T.astype(np.float32), {}
 
     def step(self, actions):
         """Steps every environment. Returns (obs [N, 4], reward [N], terminated, truncated, {})."""
         actions = np.asarray(actions)
-        if actions.shape != (self.num_envs,) or not np.isin(actions, (0, 1)).all():
+        # As indices (a negative action wraps round to a large one), for integers and booleans.
+        indices = actions.astype(np.uintp) if actions.dtype.kind in "biu" else None
+        if actions.shape != (self.num_envs,) or indices is None or (indices > 1).any():
             raise ValueError(
-                f"actions: expected {self.num_envs} actions, each 0 (push left) or 1 (push "
-                f"right), got {actions!r}"
+                f"actions: expected {self.num_envs} integer actions, each 0 (push left) or 1 "
+                f"(push right), got {actions!r}"
             )
-        if self._stream is None:
+        if self._values is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
-        self._key, obs, self._stream, reward, terminated, truncated = _vector_step(
-            self._key, self._stream, actions.astype(np.int32), self._episode_params
-        )
-        obs, reward, terminated, truncated = jax.device_get((obs, reward, terminated, truncated))
-        return (
-            np.array(obs, dtype=np.float32),
-            np.array(reward, dtype=np.float32),
-            np.array(terminated),
-            np.array(truncated),
-            {},
-        )
+        values, terminated = _step_many(self._values, indices, self._physics)
+        time = self._time + 1
+        truncated = time >= self.max_episode_steps
+        if self.env_params.sutton_barto_reward:
+            reward = np.where(terminated, np.float32(-1), np.float32(0))
+        else:
+            reward = np.ones(self.num_envs, np.float32)
+        done = self._prev_done
+        if done.any():  # drawn as Gymnasium's CartPoleVectorEnv draws them
+            low, high = self._bounds
+            values[:, done] = self.np_random.uniform(low, high, size=(4, done.sum()))
+            time[done] = 0
+            reward[done] = 0
+            terminated[done] = False
+            truncated[done] = False
+        self._values, self._time, self._prev_done = values, time, terminated | truncated
+        return values.T.astype(np.float32), reward, terminated, truncated, {}
 
     def render(self):
         """One uint8 frame `[400, 600, 3]` per environment, in "rgb_array" mode."""
@@ -279,9 +373,9 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
                 'gymnasium.make_vec("jaxpg/CartPole-v1", render_mode="rgb_array")'
             )
             return None
-        if self._stream is None:
+        if self._values is None:
             raise ValueError("cannot render before reset()")
-        return tuple(render.render_frame(self._stream.env_state, self.env_params))
+        return tuple(render.render_frame(self._values.T, self.env_params))
 
 
 def register():

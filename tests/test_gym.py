@@ -3,6 +3,8 @@
 import warnings
 
 import gymnasium
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -88,14 +90,66 @@ def test_vector_env_steps_and_autoresets_as_gymnasium():
         actions = rng.integers(2, size=num_envs)
         expected = reference.step(actions)
         got = envs.step(actions)
-        # Environments that finished last step reset (from different random numbers).
         np.testing.assert_allclose(got[0][~prev_done], expected[0][~prev_done], atol=ATOL)
-        assert np.all(np.abs(got[0][prev_done]) <= 0.05)
+        # Environments that finished last step reset, from the same random numbers.
+        np.testing.assert_array_equal(got[0][prev_done], expected[0][prev_done])
         for ours, theirs in zip(got[1:4], expected[1:4]):
             assert ours.dtype == theirs.dtype
             np.testing.assert_array_equal(ours, theirs)
         prev_done = got[2] | got[3]
     assert got[0].dtype == np.float32
+
+
+def _states(rng, n, angle):
+    """`[n, 4]` states with angles up to `angle` radians (beyond a quarter turn, the sine and
+    cosine reduce the angle) and other values up to 3 (beyond the track)."""
+    return rng.uniform(-1, 1, (n, 4)) * [3.0, 3.0, angle, 3.0]
+
+
+@pytest.mark.parametrize("x64", [False, True], ids=["float32", "float64"])
+@pytest.mark.parametrize("env_params", [
+    cartpole.V1,
+    cartpole.make_params(integrator="semi-implicit", masspole=0.3, sutton_barto_reward=True),
+], ids=["v1", "semi-implicit-sutton-barto"])
+def test_steps_equal_cartpole_step(env_params, x64):
+    """Both adapters step as the compiled `cartpole.step` does, within an episode's angles and far
+    beyond them: to its last bit, which XLA rounds otherwise where it fuses a multiplication and
+    an addition, or divides by a number through its reciprocal. One environment steps exactly as
+    N do."""
+    rng = np.random.default_rng(5)
+    step = jax.jit(cartpole.step)
+    with jax.enable_x64(x64):
+        eps = np.finfo(np.float64 if x64 else np.float32).eps
+        for angle in (0.3, 20.0):
+            values, actions = _states(rng, 512, angle), rng.integers(2, size=512)
+            _, state, reward, terminated, _ = step(
+                cartpole.CartPoleState.from_array(values), jnp.asarray(actions), env_params)
+            expected = np.asarray(state.to_array(), np.float64)
+            envs = jaxpg_gym.CartPoleVectorEnv(512, env_params=env_params)
+            envs.reset(seed=0)
+            envs.state = values.T
+            _, got_reward, got_terminated, _, _ = envs.step(actions)
+            np.testing.assert_allclose(envs.state.T, expected, rtol=2 * eps, atol=4 * eps)
+            np.testing.assert_array_equal(got_terminated, terminated)
+            np.testing.assert_array_equal(got_reward, reward)
+            env = jaxpg_gym.CartPoleEnv(env_params=env_params)
+            for row in range(0, 512, 8):
+                env.reset(seed=0)
+                env.state = values[row]
+                _, got_reward, got_terminated, _, _ = env.step(int(actions[row]))
+                np.testing.assert_array_equal(env.state, envs.state[:, row])
+                assert (got_reward, got_terminated) == (reward[row], terminated[row])
+
+
+def test_resets_draw_gymnasiums_initial_states():
+    for seed in range(4):
+        theirs, _ = gymnasium.make("CartPole-v1").reset(seed=seed)
+        np.testing.assert_array_equal(gymnasium.make("jaxpg/CartPole-v1").reset(seed=seed)[0],
+                                      theirs)
+        theirs, _ = gymnasium.make_vec("CartPole-v1", 5, vectorization_mode="vector_entry_point"
+                                       ).reset(seed=seed)
+        np.testing.assert_array_equal(gymnasium.make_vec("jaxpg/CartPole-v1", 5).reset(seed=seed)[0],
+                                      theirs)
 
 
 def test_reset_with_a_seed_is_deterministic():
@@ -156,6 +210,9 @@ def test_custom_physics_and_bad_arguments():
     envs.reset(seed=0)
     with pytest.raises(ValueError, match="actions"):
         envs.step(np.array([0, 1, 1]))
+    for actions in ([0, 2], [-1, 0], [0.0, 1.0]):
+        with pytest.raises(ValueError, match="actions"):
+            envs.step(np.array(actions))
     with pytest.raises(ValueError, match="num_envs"):
         jaxpg_gym.CartPoleVectorEnv(num_envs=0)
     with pytest.raises(ValueError, match="render_mode"):
