@@ -13,7 +13,7 @@ import statistics
 import sys
 import time
 
-from jaxpg.reinforce import usable_cores
+from jaxpg.schedule import usable_cores
 
 RESULTS_DIR = pathlib.Path(__file__).resolve().parent / "results"
 

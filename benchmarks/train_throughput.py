@@ -1,9 +1,9 @@
 """Compile time, run time and environment steps per second of REINFORCE training, jaxpg vs numpy.
 
 jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) at once with
-`reinforce.run`, whose compiled program runs ten iterations a call; compiling its two programs
-(`init` and `iterate`, for each size of block of runs that `run` trains: `reinforce.part_blocks`,
-as `run` compiles them: `reinforce.prepare`) is timed apart from the runs, which follow one
+`schedule.run`, whose compiled program runs ten iterations a call; compiling its two programs
+(`init` and `iterate`, for each size of block of runs that `run` trains: `schedule.part_blocks`,
+as `run` compiles them: `schedule.prepare`) is timed apart from the runs, which follow one
 untimed warm-up run. The
 numpy book implementation (`book_numpy.py`: one seed, one step at a time on Gymnasium's
 CartPole-v1) runs in the same process for scale.
@@ -13,7 +13,7 @@ Step counts:
   mean_length * episodes); the only kind the numpy trainer takes.
 - padded steps: iterations * episodes * max_steps * R, the fixed horizon of every iteration.
 - skipped: the share of padded steps the rollout never simulates, because every episode of every
-  run in a block of runs (`reinforce.cpu_blocks`) had ended before their chunk of `rollout.CHUNK`
+  run in a block of runs (`schedule.cpu_blocks`) had ended before their chunk of `rollout.CHUNK`
   steps (from each block's longest episode in each iteration). The gradient's time loop stops
   there too; its step signals are computed for all steps at once.
 
@@ -38,9 +38,10 @@ import time
 
 import book_numpy
 import common
+import flax.linen as nn
 import numpy as np
 
-from jaxpg import flags, reinforce, rollout
+from jaxpg import flags, programs, rollout, schedule, train_config
 from jaxpg.sweep import check_seeds, expand_grid, run_inputs
 
 
@@ -55,7 +56,7 @@ def skipped_fraction(config, max_lengths):
     """Share of padded steps in chunks after every episode ended; `max_lengths` `[R, I]`."""
     chunk = min(rollout.CHUNK, config.max_steps)
     computed = 0.0
-    for start, stop in reinforce.cpu_blocks(max_lengths.shape[0])[0]:
+    for start, stop in schedule.cpu_blocks(max_lengths.shape[0])[0]:
         block = max_lengths[start:stop]
         longest = np.max(block, axis=0)  # a block skips a chunk once all its episodes ended
         steps = np.minimum(np.ceil(longest / chunk) * chunk, config.max_steps)
@@ -64,7 +65,7 @@ def skipped_fraction(config, max_lengths):
 
 
 def compile_programs(program, blocks):
-    """Compiles `program` for `blocks` as `reinforce.run` does (`reinforce.prepare`), timed.
+    """Compiles `program` for `blocks` as `schedule.run` does (`schedule.prepare`), timed.
 
     Returns:
       {"lower_s": until every program is traced and lowered, "compile_s": then until every one is
@@ -72,7 +73,7 @@ def compile_programs(program, blocks):
       the time `run` takes to have its programs, and neither part alone is XLA's.
     """
     start = time.perf_counter()
-    programs = reinforce.prepare(program, blocks)
+    programs = schedule.prepare(program, blocks)
     lowered_at = time.perf_counter()
     for compiled in programs:
         compiled.result()
@@ -80,9 +81,26 @@ def compile_programs(program, blocks):
     return {"lower_s": lowered_at - start, "compile_s": done - lowered_at}
 
 
-def measure_jaxpg(config, num_runs, repeats):
+class BookModule(nn.Module):
+    """The default network's shape written as a user would: Dense(5) -> elu -> Dense(1)."""
+
+    @nn.compact
+    def __call__(self, obs):
+        return nn.Dense(1)(nn.elu(nn.Dense(5)(obs)))
+
+
+# Configs trained beside the built-in path: a user's module, the baseline loss, an entropy bonus.
+VARIANTS = {
+    "builtin": {},
+    "module": {"policy": BookModule()},
+    "baseline": {"loss": "baseline"},
+    "entropy": {"entropy_coef": 0.01},
+}
+
+
+def measure_jaxpg(config, num_runs, repeats, variant="builtin"):
     """`measure_row` in a fresh process with the `jaxpg` command's setting for `num_runs` runs."""
-    command = [sys.executable, __file__, "--row", str(num_runs),
+    command = [sys.executable, __file__, "--row", str(num_runs), "--variants", variant,
                "--iterations", str(config.iterations), "--repeats", str(repeats)]
     child = subprocess.run(command, stdout=subprocess.PIPE, text=True)
     rows = [line[len(ROW):] for line in child.stdout.splitlines() if line.startswith(ROW)]
@@ -94,23 +112,24 @@ def measure_jaxpg(config, num_runs, repeats):
 ROW = "row: "  # the line of a row's process that holds its measurements, as JSON
 
 
-def measure_row(config, num_runs, repeats):
+def measure_row(config, num_runs, repeats, variant="builtin"):
     """Compiles the training of `num_runs` seeds, runs it once, then times `repeats` runs."""
     flags.configure_xla(runs=num_runs)  # before JAX starts its backends
     # Seeds 0..R-1 under the config's own settings, passed as a sweep passes them.
     keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
-    program = reinforce.compiled_program(config)
+    program = programs.compiled_program(config)
     parts = [(keys, hyperparams)]
-    times = compile_programs(program, [block for block, _ in reinforce.part_blocks(parts[0])])
-    reinforce.run(program, config.iterations, parts)  # warm-up
+    times = compile_programs(program, [block for block, _ in schedule.part_blocks(parts[0])])
+    schedule.run(program, config.iterations, parts)  # warm-up
     timing, (result,) = common.time_calls(
-        reinforce.run, program, config.iterations, parts, repeats=repeats
+        schedule.run, program, config.iterations, parts, repeats=repeats
     )
     metrics = result.metrics
     simulated, padded = step_counts(config, num_runs, np.asarray(metrics.mean_length))
     # With a reward of 1 per step, an episode's return is its length.
     skipped = skipped_fraction(config, np.asarray(metrics.max_return))
-    return _row("jaxpg", num_runs, config.iterations, timing["median_s"], simulated, padded,
+    impl = "jaxpg" if variant == "builtin" else f"jaxpg-{variant}"
+    return _row(impl, num_runs, config.iterations, timing["median_s"], simulated, padded,
                 np.mean(np.asarray(metrics.mean_return)[:, -1]),
                 times_s=timing["times_s"], skipped_fraction=skipped,
                 xla_cpu_threads=next((os.environ[name] for name in flags.THREADS
@@ -162,6 +181,8 @@ def parse_args():
                              "fewer are extrapolated); 0 skips it")
     parser.add_argument("--book-env", default="CartPole-v1",
                         help="Gymnasium env id the numpy trainer runs on")
+    parser.add_argument("--variants", default="builtin",
+                        help=f"comma-separated configs to train, each R in turn: {', '.join(VARIANTS)}")
     parser.add_argument("--row", type=int, help=argparse.SUPPRESS)  # one R, printed as JSON
     args = parser.parse_args()
     if args.quick:
@@ -169,6 +190,9 @@ def parse_args():
         args.iterations = args.iterations or 10
         args.book_iterations = 5 if args.book_iterations is None else args.book_iterations
     args.seeds = [int(r) for r in args.seeds.split(",")]
+    args.variants = args.variants.split(",")
+    if not set(args.variants) <= set(VARIANTS):
+        parser.error(f"--variants: allowed: {', '.join(VARIANTS)}")
     if any(r < 1 for r in args.seeds):
         parser.error("--seeds: every R must be a positive integer")
     return args
@@ -176,11 +200,13 @@ def parse_args():
 
 def main():
     args = parse_args()
-    config = reinforce.TrainConfig()
+    config = train_config.TrainConfig()
     if args.iterations:
         config = dataclasses.replace(config, iterations=args.iterations)
     if args.row is not None:
-        print(ROW + json.dumps(measure_row(config, args.row, repeats(args, args.row))))
+        (variant,) = args.variants
+        config = dataclasses.replace(config, **VARIANTS[variant])
+        print(ROW + json.dumps(measure_row(config, args.row, repeats(args, args.row), variant)))
         return
     flags.configure_xla()  # the rows' processes inherit it; each adds its own threads
     book_iterations = config.iterations if args.book_iterations is None else args.book_iterations
@@ -188,8 +214,9 @@ def main():
 
     rows = []
     for num_runs in sorted(args.seeds):
-        rows.append(measure_jaxpg(config, num_runs, repeats(args, num_runs)))
-        _print_progress(rows[-1])
+        for variant in args.variants:
+            rows.append(measure_jaxpg(config, num_runs, repeats(args, num_runs), variant))
+            _print_progress(rows[-1])
     if book_iterations:
         rows.append(measure_book(config, book_iterations, args.book_env))
         _print_progress(rows[-1])
@@ -207,6 +234,11 @@ def main():
         if row["impl"] == "jaxpg" and book:
             print(f"jaxpg R={row['n']}: {row['steps_per_s'] / book[0]['steps_per_s']:,.1f}x "
                   f"the numpy trainer's simulated steps/s")
+    builtin = {row["n"]: row["run_s"] for row in rows if row["impl"] == "jaxpg"}
+    for row in rows:
+        if row["impl"].startswith("jaxpg-") and row["n"] in builtin:
+            print(f"{row['impl']} R={row['n']}: {row['run_s'] / builtin[row['n']]:.2f}x the "
+                  f"built-in path's run time, compiled in {row['lower_s'] + row['compile_s']:.2f} s")
     path = common.write_results("train_throughput", args, rows, config=dataclasses.asdict(config))
     common.write_chart(rows, path, "REINFORCE training, simulated env steps/s",
                        xlabel="R (seeds trained at once)")
@@ -218,7 +250,7 @@ def repeats(args, num_runs):
 
 
 def _print_progress(row):
-    print(f"{row['impl']:>10}  R={row['n']:<5}  {row['run_s']:8.2f} s  "
+    print(f"{row['impl']:>14}  R={row['n']:<5}  {row['run_s']:8.2f} s  "
           f"{row['steps_per_s']:>14,.0f} simulated steps/s", flush=True)
 
 

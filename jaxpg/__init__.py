@@ -9,7 +9,9 @@ __version__ = "0.1.0"
 from jaxpg import cartpole, gym
 from jaxpg.evaluate import evaluate
 from jaxpg.policies import basic_policy
-from jaxpg.reinforce import TrainConfig, TrainResult, train
+from jaxpg.iteration import TrainResult
+from jaxpg.reinforce import train
+from jaxpg.train_config import TrainConfig
 from jaxpg.returns import discount_and_normalize_rewards, discount_rewards
 from jaxpg.sweep import sweep
 

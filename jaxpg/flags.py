@@ -12,7 +12,7 @@ rather than kernel by kernel with its fusion emitters (a dozen milliseconds of c
 whatever their size), when its cost model's bytes accessed are under a threshold and nothing in it
 calls a library (a custom fusion). At XLA's 1024 bytes that is the discounting loop alone. At
 `WHOLE_LOOP_BYTES` it is the whole ten-iteration loop of the training program, of a run alone and
-of any block of runs a CPU trains (`reinforce.CPU_BLOCK`; 28 MB for 16 runs of the book's
+of any block of runs a CPU trains (`schedule.CPU_BLOCK`; 28 MB for 16 runs of the book's
 settings): each program is one function, which LLVM compiles on one thread in less CPU time than
 XLA's kernels on two, and which runs without dispatching kernels. The loop of a block of more
 episodes or steps stays kernel by kernel. `rollout.rollout` sums its returns as integers for this:
@@ -25,7 +25,7 @@ against XLA's 1024 bytes (an earlier version, on an Intel Xeon), 1 seed compiled
 1.82 s instead of 2.38, 1.99 and 2.11 s and 8 seeds trained in 0.13 to 0.14 s instead of 0.23 to
 0.25 s; `jaxpg evaluate` reports the same statistics, sooner.
 Only as long as a run alone compiles with XLA's own vector width: with 512-bit vectors
-(`reinforce.TOGETHER_OPTIONS`, which blocks use) its rollout compiled whole rounds some episodes
+(`programs.TOGETHER_OPTIONS`, which blocks use) its rollout compiled whole rounds some episodes
 differently (8 of the book's seeds 0 to 15 ended elsewhere), as the older emitter can round a run
 axis of one entry differently from two or more, by how LLVM fuses multiplications and additions
 into FMAs. While a run alone still had a run axis of one entry, its ten-iteration loop compiled
@@ -83,3 +83,14 @@ def configure_xla(runs=None):
     if (runs == 1 and not any(os.environ.get(name) for name in (*THREADS, CPU_DEVICES))
             and "--xla_force_host_platform_device_count" not in flags):
         os.environ[THREADS[0]] = "1"
+
+
+def configure_unstarted():
+    """`configure_xla()` where JAX has not started its backends yet, which read the setting when
+    they start; nothing otherwise. `train` and `sweep` call it, so that a Python program trains as
+    fast as the command without asking (all but the one thread for a run alone, which would slow
+    the process's later sweeps)."""
+    from jax._src import xla_bridge  # here: importing this module must not import JAX
+
+    if not xla_bridge.backends_are_initialized():
+        configure_xla()

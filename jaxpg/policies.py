@@ -38,15 +38,18 @@ def check_network(hidden, activation):
         raise ValueError(
             f"activation: unknown {activation!r}; allowed: {', '.join(ACTIVATIONS)}"
         )
-    if len(hidden) == 0 or any(int(h) != h or h < 1 for h in hidden):
-        raise ValueError(f"hidden: must be one or more positive layer sizes, got {tuple(hidden)}")
+    if any(isinstance(h, bool) or not isinstance(h, int | np.integer) or h < 1 for h in hidden):
+        raise ValueError(f"hidden: must be positive layer sizes (none: a linear policy), "
+                         f"got {tuple(hidden)}")
 
 
 class PolicyNetwork(nn.Module):
-    """Dense(hidden) -> activation -> ... -> Dense(1): the logit of P(push left).
+    """Dense(hidden) -> activation -> ... -> Dense(1): the logit of P(push left) `[...]`.
 
-    Weights start Glorot-uniform and biases at zero, as Keras's Dense does. `forward` computes the
-    same logits from the parameters, also for many runs' parameters at once.
+    Weights start Glorot-uniform and biases at zero, as Keras's Dense does. Its own `apply` is
+    flax's dense layers, which the trainer differentiates as any module's (`jaxpg.runwise`);
+    `forward` computes the same logits from the parameters for the fast path and evaluation,
+    also for many runs' parameters at once.
     """
 
     hidden: Sequence[int] = (5,)
@@ -54,10 +57,14 @@ class PolicyNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs):
-        features = jnp.moveaxis(obs, -1, 0)
+        features = obs
         for size in self.hidden:
-            features = ACTIVATIONS[self.activation](Dense(size)(features))
-        return Dense(1)(features)[0]
+            features = ACTIVATIONS[self.activation](_dense(size)(features))
+        return _dense(1)(features)[..., 0]
+
+
+def _dense(features):
+    return nn.Dense(features, kernel_init=nn.initializers.glorot_uniform())
 
 
 def forward(policy_params, obs, activation):
@@ -89,18 +96,6 @@ def forward_layers(policy_params, obs, activation, offsets=None):
         if offsets is not None:
             features = features + offsets[i]
     return features[0], inputs
-
-
-class Dense(nn.Module):
-    """A dense layer on features `[K, ...]`, with Keras's initialisation, computed by `dense`."""
-
-    features: int
-
-    @nn.compact
-    def __call__(self, x):
-        kernel = self.param("kernel", nn.initializers.glorot_uniform(), (x.shape[0], self.features))
-        bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return dense(x, kernel, bias)
 
 
 def _along(weights, x):
@@ -149,7 +144,8 @@ dense.defvjp(_dense_fwd, _dense_bwd)
 
 
 def init_network(key, network):
-    """Initial `policy_params` of a `PolicyNetwork`."""
+    """Initial `policy_params` of a policy module (a `PolicyNetwork` or any other), from
+    `network.init` on one observation."""
     return network.init(key, jnp.zeros((4,)))
 
 
@@ -186,9 +182,22 @@ def unflatten(flat, network):
                                      for shape, start, stop in zip(shapes, bounds, bounds[1:])])
 
 
-def log_prob(logit, action):
-    """log pi(action | obs) from the logit of P(left): `log sigmoid(logit)` for action 0."""
-    return jax.nn.log_sigmoid(jnp.where(action == 0, logit, -logit))
+def logits(module, policy_params, obs):
+    """The logit of P(push left) `[...]` of a policy module for observations `[..., 4]`.
+
+    The module returns that logit as `[...]` or `[..., 1]`, or the logits of (left, right) as
+    `[..., 2]`, whose difference it is.
+    """
+    out = module.apply(policy_params, obs)
+    batch = obs.shape[:-1]
+    if out.shape == batch:
+        return out
+    if out.shape == (*batch, 1):
+        return out[..., 0]
+    if out.shape == (*batch, 2):
+        return out[..., 0] - out[..., 1]
+    raise ValueError(f"policy: for observations {obs.shape} the module must return logits shaped "
+                     f"{batch}, {(*batch, 1)} or {(*batch, 2)}, got {out.shape}")
 
 
 def sample_action(logit, u):
@@ -197,12 +206,15 @@ def sample_action(logit, u):
 
 
 def network_policy(network, policy_params):
-    """The network as a policy `(obs [E, 4], u [E]) -> action [E]` that samples its actions.
+    """A policy module as a policy `(obs [E, 4], u [E]) -> action [E]` that samples its actions.
 
-    `policy_params` may hold R runs' parameters on trailing axes, for observations `[E, R, 4]`.
+    For a `PolicyNetwork`, `policy_params` may hold R runs' parameters on trailing axes, for
+    observations `[E, R, 4]` (computed by `forward`); any other module takes one run's.
     """
 
     def policy(obs, u):
-        return sample_action(forward(policy_params, obs, network.activation), u)
+        if isinstance(network, PolicyNetwork):
+            return sample_action(forward(policy_params, obs, network.activation), u)
+        return sample_action(logits(network, policy_params, obs), u)
 
     return policy

@@ -20,11 +20,11 @@ class _Bar:
         self.start = time.perf_counter()
         self.every = max(1, total // 10)  # in logs, about ten lines per run
 
-    def update(self, iteration, mean_returns):
+    def update(self, iteration, metrics):
         done = iteration + 1
         if not self.interactive and done % self.every and done != self.total:
             return
-        mean_returns = np.asarray(mean_returns)
+        mean_returns = np.asarray(metrics.mean_return)
         runs = f" (mean of {mean_returns.size} runs)" if mean_returns.size > 1 else ""
         line = (
             f"{self.label}Iteration: {done}/{self.total}, mean rewards: "
@@ -50,7 +50,8 @@ def bar(total, enabled=True, stream=None, label=""):
       label: text before each line, such as which runs are training.
 
     Yields:
-      `on_iteration(iteration, mean_returns [R])` to call once per iteration, or None if disabled.
+      `on_iteration(iteration, metrics)` to call once per iteration with a `Metrics` of the
+      runs training (`[R]` leaves), or None if disabled.
     """
     if not enabled:
         yield None
@@ -60,3 +61,17 @@ def bar(total, enabled=True, stream=None, label=""):
         yield current.update
     finally:
         current.close()
+
+
+def together(*hooks):
+    """One `on_iteration(iteration, metrics)` that calls each of `hooks` not None, in order; None
+    where there is none."""
+    hooks = [hook for hook in hooks if hook is not None]
+    if not hooks:
+        return None
+
+    def on_iteration(iteration, metrics):
+        for hook in hooks:
+            hook(iteration, metrics)
+
+    return on_iteration

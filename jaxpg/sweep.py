@@ -6,6 +6,7 @@ runs on the last axis of every array; seed i of a sweep therefore trains exactly
 of every process, and trained in chunks when a memory budget asks for it.
 """
 
+import dataclasses
 import itertools
 import numbers
 from typing import NamedTuple
@@ -15,9 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxpg import progress, reinforce
+from jaxpg import flags, iteration, programs, progress, reinforce, schedule, train_config
 
-GRID_FIELDS = ("learning_rate", "discount")
+GRID_FIELDS = train_config.Hyperparams._fields
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
 
 
@@ -55,7 +56,7 @@ class SweepResult(NamedTuple):
     seeds: np.ndarray  # [S]
     grid: list  # G dicts {"learning_rate": ..., "discount": ...}
     policy_params: dict  # leaves [G, S, ...]
-    metrics: reinforce.Metrics  # leaves [G, S, I]
+    metrics: iteration.Metrics  # leaves [G, S, I]
     summary: Summary
 
 
@@ -75,7 +76,7 @@ def expand_grid(config, grid):
         values.append(options)
     settings = [dict(zip(GRID_FIELDS, combo)) for combo in itertools.product(*values)]
     for setting in settings:
-        reinforce.check_hyperparams(**setting)
+        train_config.check_hyperparams(**setting)
     return settings
 
 
@@ -102,18 +103,22 @@ def check_memory_budget(memory_budget):
         )
 
 
-def sweep(config=reinforce.TrainConfig(), seeds=range(64), grid=None, show_progress=True,
-          memory_budget=None):
+def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_progress=True,
+          memory_budget=None, on_iteration=None):
     """Trains every seed under every grid setting, on every device, in chunks that fit a budget.
 
     Args:
       config: the `TrainConfig` every run shares.
       seeds: S distinct integer seeds.
-      grid: optional `{"learning_rate": [...], "discount": [...]}`; the runs are its product.
+      grid: optional `{"learning_rate": [...], "discount": [...], "entropy_coef": [...]}`; the
+        runs are its product.
       show_progress: print a line per iteration (per chunk, when there are several).
       memory_budget: optional bytes of memory one device may use for a chunk of runs (see
         `fitting_chunk_size`); None trains all runs in one chunk. A budget below what one run
         needs is a ValueError (raised after compiling one run's program, which measures it).
+      on_iteration: optional `(iteration, metrics) -> None`, called on the host as iterations
+        complete, in order, with a `Metrics` of the runs training now (`[C]` leaves: the chunk's
+        runs, setting-major, as `SweepResult` orders them).
 
     Returns:
       `SweepResult` with `[G, S, ...]` leaves and the `Summary`, on every process.
@@ -123,7 +128,10 @@ def sweep(config=reinforce.TrainConfig(), seeds=range(64), grid=None, show_progr
     check_memory_budget(memory_budget)
     inputs = run_inputs(seeds, settings)
     num_runs = inputs[0].shape[0]
-    program = reinforce.compiled_program(config)
+    flags.configure_unstarted()
+    # The fast path only where no run has an entropy bonus: one program serves every setting.
+    entropy = max(setting["entropy_coef"] for setting in settings)
+    program = programs.compiled_program(dataclasses.replace(config, entropy_coef=entropy))
     if memory_budget is None:
         chunk = chunk_size(num_runs, jax.device_count())
     else:
@@ -135,8 +143,9 @@ def sweep(config=reinforce.TrainConfig(), seeds=range(64), grid=None, show_progr
         # with copies of the last run, whose results are dropped.
         indices = np.minimum(np.arange(start, start + chunk), num_runs - 1)
         label = f"runs {start + 1}-{stop} of {num_runs}" if chunk < num_runs else ""
-        with progress.bar(config.iterations, show_progress, label=label) as on_iteration:
-            part = train_on_devices(program, config.iterations, _take(inputs, indices), on_iteration)
+        with progress.bar(config.iterations, show_progress, label=label) as shown:
+            part = train_on_devices(program, config.iterations, _take(inputs, indices),
+                                    progress.together(shown, on_iteration))
         if result is None:
             result = jax.tree.map(lambda leaf: np.empty((num_runs, *leaf.shape[1:]), leaf.dtype), part)
         for out, leaf in zip(jax.tree.leaves(result), jax.tree.leaves(part)):
@@ -144,6 +153,9 @@ def sweep(config=reinforce.TrainConfig(), seeds=range(64), grid=None, show_progr
     num_settings, num_seeds = len(settings), seeds.size
     result = jax.tree.map(lambda leaf: leaf.reshape(num_settings, num_seeds, *leaf.shape[1:]), result)
     summary = summarize(result.metrics.mean_return, config.solved_return)
+    reinforce.warn_if_diverged(
+        result.metrics.loss.reshape(num_runs, -1),
+        [f"seed {seed} with {setting}" for setting in settings for seed in seeds])
     return SweepResult(seeds, settings, result.policy_params, result.metrics, summary)
 
 
@@ -155,7 +167,7 @@ def run_inputs(seeds, settings):
       R = G * S and run g * S + s is seed s under setting g.
     """
     keys = np.tile(np.asarray(reinforce.run_keys(seeds)), (len(settings), 1))
-    hyperparams = reinforce.Hyperparams(**{
+    hyperparams = train_config.Hyperparams(**{
         name: np.repeat(np.asarray([s[name] for s in settings], np.float32), seeds.size)
         for name in GRID_FIELDS
     })
@@ -176,10 +188,10 @@ def train_on_devices(program, iterations, inputs, on_iteration=None):
     rewrites, and seed i would no longer train bit for bit as seed i alone.
 
     Args:
-      program: `reinforce.compiled_program(config)`.
+      program: `programs.compiled_program(config)`.
       iterations: how many iterations to train.
       inputs: (keys `[C, 2]`, `Hyperparams` `[C]`) as numpy arrays, the same on every process.
-      on_iteration: optional `(iteration, mean_returns) -> None` for this process's runs.
+      on_iteration: optional `(iteration, metrics) -> None` for this process's runs.
 
     Returns:
       `TrainResult` with numpy leaves `[C, ...]`, on every process.
@@ -190,7 +202,7 @@ def train_on_devices(program, iterations, inputs, on_iteration=None):
     first = jax.process_index() * per_process
     shares = [slice(first + i * per_device, first + (i + 1) * per_device) for i in range(len(devices))]
     parts = [jax.device_put(_take(inputs, share), device) for share, device in zip(shares, devices)]
-    local = reinforce.run(program, iterations, parts, on_iteration)
+    local = schedule.run(program, iterations, parts, on_iteration)
     local = jax.tree.map(lambda *leaves: np.concatenate(leaves), *local)
     return multihost_utils.process_allgather(local, tiled=True)
 
@@ -201,17 +213,17 @@ def device_bytes(program, iterations, num_runs):
     XLA's buffer assignment for one call of `program` (its arguments, among them the training
     state; outputs; temporaries; generated code), from the compiled program's
     `memory_analysis()`, plus every call's metrics, which stay on the device until the end.
-    A CPU trains the runs in blocks (`reinforce.device_blocks`): every block's state and metrics
+    A CPU trains the runs in blocks (`schedule.device_blocks`): every block's state and metrics
     count, and the temporaries of as many blocks as train at once. It compiles the program that
     training runs, for this process's first device, so that training reuses it.
     """
     device = jax.local_devices()[0]
-    bounds, size = reinforce.device_blocks(num_runs, device)
-    blocks, at_once = len(bounds), min(len(bounds), reinforce.usable_cores())
+    bounds, size = schedule.device_blocks(num_runs, device)
+    blocks, at_once = len(bounds), min(len(bounds), schedule.usable_cores())
     placed = jax.sharding.SingleDeviceSharding(device)
     keys = jax.ShapeDtypeStruct((size, 2), jnp.uint32, sharding=placed)
-    hyperparams = reinforce.Hyperparams(
-        *[jax.ShapeDtypeStruct((size,), jnp.float32, sharding=placed)] * 2
+    hyperparams = train_config.Hyperparams(
+        *[jax.ShapeDtypeStruct((size,), jnp.float32, sharding=placed)] * len(GRID_FIELDS)
     )
     state = jax.tree.map(
         lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=placed),
@@ -221,7 +233,7 @@ def device_bytes(program, iterations, num_runs):
     _, metrics = program.iterate.eval_shape(state, hyperparams, count)
     stats = program.iterate.lower(state, hyperparams, count).compile().memory_analysis()
     kept = stats.argument_size_in_bytes + stats.output_size_in_bytes - stats.alias_size_in_bytes
-    history = len(reinforce.calls(iterations)) * metrics.size * metrics.dtype.itemsize
+    history = len(schedule.calls(iterations)) * metrics.size * metrics.dtype.itemsize
     return (blocks * (kept + history) + at_once * stats.temp_size_in_bytes
             + stats.generated_code_size_in_bytes)
 

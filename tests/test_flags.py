@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from jaxpg import flags, reinforce
+from jaxpg import flags, schedule
 
 CHECK_ALONE = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "check_alone.py"
 
@@ -22,17 +22,17 @@ if sys.argv[2] == "set":
     flags.configure_xla()
 if sys.argv[2] == "one thread":
     flags.configure_xla(runs=1)
-from jaxpg import reinforce
+from jaxpg import train_config, programs, reinforce, schedule
 from jaxpg.sweep import check_seeds, expand_grid, run_inputs
 
-reinforce.usable_cores = lambda: 1  # on more cores, three runs would train alone
-config = reinforce.TrainConfig(iterations=12, episodes=3, max_steps=40)
-program = reinforce.compiled_program(config)
+schedule.usable_cores = lambda: 1  # on more cores, three runs would train alone
+config = train_config.TrainConfig(iterations=12, episodes=3, max_steps=40)
+program = programs.compiled_program(config)
 saved = {}
 for num_runs in (1, 3):
     keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
-    (result,) = reinforce.run(program, config.iterations, [(keys, hyperparams)])
-    for name, leaf in zip(result.metrics._fields, result.metrics):
+    (result,) = schedule.run(program, config.iterations, [(keys, hyperparams)])
+    for name, leaf in result.metrics.columns().items():
         saved[f"{num_runs}-{name}"] = leaf
     for i, leaf in enumerate(reinforce.jax.tree.leaves(result.policy_params)):
         saved[f"{num_runs}-param{i}"] = leaf
@@ -110,12 +110,12 @@ WHOLE = """
 from jaxpg import flags
 flags.configure_xla()
 import numpy as np
-from jaxpg import reinforce
+from jaxpg import train_config, programs, reinforce, schedule
 from jaxpg.sweep import check_seeds, expand_grid, run_inputs
 
-config = reinforce.TrainConfig()
-program = reinforce.compiled_program(config)
-for runs in (1, reinforce.CPU_BLOCK):
+config = train_config.TrainConfig()
+program = programs.compiled_program(config)
+for runs in (1, schedule.CPU_BLOCK):
     keys, hyperparams = run_inputs(check_seeds(range(runs)), expand_grid(config, None))
     state = program.init(keys, hyperparams)
     text = program.iterate.lower(state, hyperparams, np.int32(1)).compile().as_text()
@@ -134,7 +134,7 @@ def test_under_the_setting_the_iteration_compiles_into_one_function():
     assert result.returncode == 0, result.stderr
     counts = {int(runs): (int(loops), int(calls))
               for runs, loops, calls in (line.split() for line in result.stdout.splitlines())}
-    assert counts == {1: (0, 1), reinforce.CPU_BLOCK: (0, 1)}
+    assert counts == {1: (0, 1), schedule.CPU_BLOCK: (0, 1)}
 
 
 def _optimized_ir_lines(tmp_path, setting):
@@ -162,7 +162,7 @@ print(max([int(n) for n in re.findall(r'outer_dimension_partitions":\\["(\\d+)',
 """
 
 
-@pytest.mark.skipif(reinforce.usable_cores() < 2, reason="XLA splits kernels over two cores or more")
+@pytest.mark.skipif(schedule.usable_cores() < 2, reason="XLA splits kernels over two cores or more")
 def test_one_thread_reaches_xla_which_then_splits_no_kernel():
     pieces = {}
     for setting in ("one thread", "per core"):
@@ -177,7 +177,7 @@ def test_xla_gets_one_thread_for_a_process_that_trains_one_run(monkeypatch):
         monkeypatch.setenv(name, "")
         monkeypatch.delenv(name)
     monkeypatch.setenv("XLA_FLAGS", "")
-    for runs in (None, 2, reinforce.CPU_BLOCK - 1):  # nothing trained; two runs; a large block
+    for runs in (None, 2, schedule.CPU_BLOCK - 1):  # nothing trained; two runs; a large block
         flags.configure_xla(runs=runs)
         assert flags.THREADS[0] not in os.environ
     flags.configure_xla(runs=1)

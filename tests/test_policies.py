@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxpg import basic_policy, policies
+from jaxpg import basic_policy, losses, policies, runwise
 
 
 def test_basic_policy_pushes_towards_the_lean():
@@ -50,8 +50,8 @@ def test_dense_and_its_gradient_equal_a_matrix_product():
 def test_log_prob_and_sampling_agree():
     logit = jnp.asarray(0.7)
     p_left = jax.nn.sigmoid(logit)
-    np.testing.assert_allclose(jnp.exp(policies.log_prob(logit, 0)), p_left, rtol=1e-6)
-    np.testing.assert_allclose(jnp.exp(policies.log_prob(logit, 1)), 1 - p_left, rtol=1e-6)
+    np.testing.assert_allclose(jnp.exp(losses.log_prob(logit, 0)), p_left, rtol=1e-6)
+    np.testing.assert_allclose(jnp.exp(losses.log_prob(logit, 1)), 1 - p_left, rtol=1e-6)
     u = jax.random.uniform(jax.random.PRNGKey(0), (20000,))
     actions = policies.sample_action(jnp.full((20000,), logit), u)
     # 20,000 Bernoulli draws: the share of left pushes is within 4 standard errors of P(left).
@@ -59,6 +59,9 @@ def test_log_prob_and_sampling_agree():
 
 
 def test_forward_equals_the_module_also_for_many_runs_at_once():
+    """`forward` adds a layer's products in the order `runwise` adds the module's matrix
+    products: bit for bit alike; and the module's own `apply` (XLA's matrix products) to
+    rounding."""
     network = policies.PolicyNetwork(hidden=(5, 3), activation="tanh")
     keys = jax.random.split(jax.random.PRNGKey(2), 3)
     runs = [policies.init_network(key, network) for key in keys]
@@ -66,9 +69,10 @@ def test_forward_equals_the_module_also_for_many_runs_at_once():
     stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves, axis=-1), *runs)  # runs last
     together = policies.forward(stacked, obs, "tanh")
     for r, params in enumerate(runs):
-        alone = network.apply(params, obs[:, r])
+        alone = runwise.runwise(network.apply, False)(params, obs[:, r])
         np.testing.assert_array_equal(policies.forward(params, obs[:, r], "tanh"), alone)
         np.testing.assert_allclose(together[:, r], alone, rtol=1e-6)
+        np.testing.assert_allclose(network.apply(params, obs[:, r]), alone, rtol=1e-6)
 
 
 @pytest.mark.parametrize("hidden", [(5,), (3, 7), tuple(range(1, 12))])  # 11 layers: Dense_10
@@ -83,14 +87,14 @@ def test_parameters_flatten_into_one_vector_and_back(hidden):
     assert flat.shape == (size, 3)
     np.testing.assert_array_equal(
         flat[:, 1], np.concatenate([leaf.ravel() for leaf in jax.tree.leaves(runs[1])]))
-    back = policies.unflatten(np.asarray(flat), network)  # on the host, as `reinforce.run` does
+    back = policies.unflatten(np.asarray(flat), network)  # on the host, as `schedule.run` does
     assert all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(back))
     chex.assert_trees_all_equal(back, jax.tree.map(np.asarray, stacked))
     chex.assert_trees_all_equal(policies.unflatten(policies.flatten(runs[2], network), network),
                                 runs[2])
 
 
-@pytest.mark.parametrize("hidden, activation, match", [((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((), "elu", "hidden")])
+@pytest.mark.parametrize("hidden, activation, match", [((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((2, -1), "elu", "hidden")])
 def test_bad_network_settings(hidden, activation, match):
     with pytest.raises(ValueError, match=match):
         policies.check_network(hidden, activation)

@@ -5,9 +5,15 @@ import importlib
 import jax
 import numpy as np
 import pytest
-from conftest import SMALL_CONFIG, SMALL_GRID, SMALL_SEEDS, assert_trained_alike, xla_compiles
+from conftest import (
+    SMALL_CONFIG,
+    SMALL_GRID,
+    SMALL_SEEDS,
+    assert_trained_alike,
+    xla_compiles,
+)
 
-from jaxpg import TrainConfig, reinforce, train
+from jaxpg import TrainConfig, programs, schedule, train
 from jaxpg.sweep import chunk_size, device_bytes, fitting_chunk_size, summarize, sweep
 
 
@@ -42,14 +48,14 @@ def test_grid_runs_every_setting_and_matches_train():
 
 
 def test_chunked_sweep_equals_one_chunk_and_compiles_once(small_sweep, capsys):
-    reinforce._program.cache_clear()  # nothing compiled yet
+    programs._program.cache_clear()  # nothing compiled yet
     with xla_compiles() as compiled:
-        program = reinforce.compiled_program(SMALL_CONFIG)
+        program = programs.compiled_program(SMALL_CONFIG)
         budget = 3 * device_bytes(program, SMALL_CONFIG.iterations, 1)
         chunked = sweep(SMALL_CONFIG, SMALL_SEEDS, SMALL_GRID, memory_budget=budget)
     # One run's program, which measures what a run needs, and the program of a chunk's blocks
     # (the same one where three runs train alone), each compiled once for all four chunks.
-    _, block = reinforce.cpu_blocks(3)
+    _, block = schedule.cpu_blocks(3)
     assert compiled.count("jit(_iterate_stacked)") == len({1, block})
     assert_trained_alike(chunked, small_sweep)
     # Ten runs, three at a time: the last chunk is run 10 and two copies of it.
@@ -60,7 +66,7 @@ def test_chunked_sweep_equals_one_chunk_and_compiles_once(small_sweep, capsys):
 
 
 def test_budget_below_one_run_is_one_line_error():
-    needed = device_bytes(reinforce.compiled_program(SMALL_CONFIG), SMALL_CONFIG.iterations, 1)
+    needed = device_bytes(programs.compiled_program(SMALL_CONFIG), SMALL_CONFIG.iterations, 1)
     with pytest.raises(ValueError, match=rf"^memory_budget: .* allowed: None or at least {needed}$"):
         sweep(SMALL_CONFIG, seeds=[0], memory_budget=needed - 1)
 

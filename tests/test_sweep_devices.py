@@ -72,5 +72,5 @@ def test_two_processes_train_as_one_and_process_0_writes(small_sweep, tmp_path):
     assert [p.returncode for p in processes] == [0, 0], errors
     assert not (tmp_path / "out1").exists()
     with np.load(tmp_path / "out0" / "metrics.npz") as npz:
-        expected = small_sweep.metrics._asdict()
+        expected = small_sweep.metrics.columns()
         assert_trained_alike({name: npz[name] for name in expected}, expected)

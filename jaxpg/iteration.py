@@ -1,0 +1,318 @@
+"""One training iteration of R runs at once: play, discount, compute the loss's gradient, step."""
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxpg import hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
+from jaxpg.train_config import Hyperparams, make_optimizer
+
+
+class TrainState(NamedTuple):
+    """The carry of R runs from iteration to iteration.
+
+    Parameters and optimizer state hold the runs on their last axis, where they meet each run's
+    episodes `[T, E, R]`; the keys are `[R, 2]`. On the fast path (`TrainConfig.hand_gradient`)
+    each run's parameters are one vector (`policies.flatten`, `[P, R]`), and so are the moments
+    of an optimizer in `ELEMENTWISE_OPTIMIZERS` (Adam among them): its step is then a few kernels
+    rather than a few per weight matrix and bias, which XLA compiles sooner. Otherwise they are
+    `{"policy": ..., "critic": ...}` as `init_run` makes them, leaves `[..., R]`.
+    """
+
+    params: jax.Array | dict
+    opt_state: optax.OptState
+    key: jax.Array
+
+
+class Metrics(NamedTuple):
+    """Per-iteration statistics of a run: `[I]`, or `[R, I]` for R runs."""
+
+    mean_return: jax.Array
+    min_return: jax.Array
+    max_return: jax.Array
+    mean_length: jax.Array
+    loss: jax.Array
+    grad_norm: jax.Array  # of the policy's gradient
+    extra: dict = {}  # the loss's own metrics by name (and `entropy` with an entropy bonus)
+
+    def columns(self):
+        """Every metric by name, the loss's own beside the others: `{name: array}`."""
+        fields = {name: getattr(self, name) for name in self._fields if name != "extra"}
+        return {**fields, **self.extra}
+
+
+
+class TrainResult(NamedTuple):
+    """The trained policy and its per-iteration metrics (leading axis `[R]` for several runs)."""
+
+    policy_params: dict
+    metrics: Metrics
+
+
+def is_run_alone(train_state):
+    """Whether a `TrainState` holds one run (keys `[1, 2]`): `iterate` then plays and computes
+    it without its run axis, and `AloneOrTogether` picks the program compiled for that."""
+    return train_state.key.shape[0] == 1
+
+
+
+def global_norm(tree):
+    """The L2 norm of every leaf together, summed in a fixed order so that it is batch-invariant."""
+    squares = [sums.invariant_sum(jnp.square(leaf).ravel(), 0) for leaf in jax.tree.leaves(tree)]
+    return jnp.sqrt(sum(squares))
+
+
+
+# Optimizers that update each parameter from its own history alone. They step a run's parameters
+# as the one vector they are kept in, in a few kernels; any other optimizer steps each parameter
+# array as optax defines it (lamb's and lars's trust ratios, adafactor's factored moments, ...).
+# `tests/test_reinforce.py` checks every name here against the per-array update.
+ELEMENTWISE_OPTIMIZERS = frozenset({
+    "adabelief", "adadelta", "adagrad", "adam", "adamax", "adamaxw", "adamw", "adan", "amsgrad",
+    "lion", "optimistic_adam_v2", "optimistic_gradient_descent", "radam", "rmsprop", "rprop", "sgd",
+    "sign_sgd", "signum", "yogi",
+})
+
+
+def _optimizer_view(config):
+    """(to, back): a run's flat parameters `[P]` (or gradient) as its optimizer takes them."""
+    if config.optimizer in ELEMENTWISE_OPTIMIZERS:
+        return (lambda flat: flat), (lambda flat: flat)
+    network = config.network
+    return (functools.partial(policies.unflatten, network=network),
+            functools.partial(policies.flatten, network=network))
+
+
+def init_run(config, key, hyperparams, policy_params=None):
+    """The initial parameters and optimizer state of one run.
+
+    On the fast path (`TrainConfig.hand_gradient`) the parameters are the policy's as one vector
+    `[P]` (`policies.flatten`); otherwise `{"policy": ...}`, with `"critic"` for a loss that has
+    one (`losses.critic`), each with its own optimizer state. `policy_params` (one run's, as
+    `policies.init_network` gives them) start the policy where given.
+    """
+    network = config.network
+    key_init = jax.random.split(key)[1]
+    if policy_params is None:
+        policy_params = policies.init_network(key_init, network)
+    optimizer = make_optimizer(config, hyperparams.learning_rate)
+    if config.hand_gradient:
+        flat = policies.flatten(policy_params, network)
+        to_optimizer, _ = _optimizer_view(config)
+        return flat, optimizer.init(to_optimizer(flat))
+    params = {"policy": policy_params}
+    critic = losses.critic(config.loss)
+    if critic is not None:
+        params["critic"] = policies.init_network(jax.random.fold_in(key_init, 1), critic)
+    return params, {name: optimizer.init(leaves) for name, leaves in params.items()}
+
+
+def init_runs(config, keys, hyperparams, policy_params=None):
+    """The initial `TrainState` of R runs, from their keys `[R, 2]` and `Hyperparams` `[R]`;
+    `policy_params`, one run's, start every run's policy where given."""
+    params, opt_state = jax.vmap(
+        lambda key, hyper: init_run(config, key, hyper, policy_params), out_axes=-1)(
+        keys, hyperparams)
+    return TrainState(params, opt_state, jax.vmap(lambda k: jax.random.split(k)[0])(keys))
+
+
+def optimizer_step(config, grads, opt_state, policy_params, learning_rate):
+    """One optimizer step of one run on the fast path, on its flat parameters and gradient `[P]`:
+    (policy_params `[P]`, opt_state)."""
+    to_optimizer, back = _optimizer_view(config)
+    params = to_optimizer(policy_params)
+    updates, opt_state = make_optimizer(config, learning_rate).update(
+        to_optimizer(grads), opt_state, params)
+    return back(optax.apply_updates(params, updates)), opt_state
+
+
+def iterate(config, train_state, hyperparams):
+    """One iteration of R runs at once: play, discount, take one optimizer step on the loss.
+
+    Args:
+      config: the `TrainConfig`.
+      train_state: `TrainState` of the R runs.
+      hyperparams: `Hyperparams` with `[R]` leaves.
+
+    Returns:
+      (`TrainState`, `Metrics` with `[R]` leaves)
+    """
+    key, key_rollout = rng.split(train_state.key)
+    alone = is_run_alone(train_state)
+    params = _without_run_axis(train_state.params) if alone else train_state.params
+
+    # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
+    # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
+    episodes = rollout.rollout(
+        key_rollout[0] if alone else key_rollout, _policy(config, params, alone),
+        config.env_params, config.episodes, config.max_steps,
+        lanes=rollout.LANES if alone else 1,
+    )
+    if alone:
+        episodes = rollout.Episodes(
+            jax.tree.map(lambda leaf: jnp.expand_dims(leaf, 2), episodes.transitions),
+            episodes.returns[:, None], episodes.lengths[:, None])
+
+    learn = _learn_by_hand if config.hand_gradient else _learn
+    new_params, opt_state, loss, grad_norm, extra = learn(
+        config, train_state, episodes.transitions, hyperparams, alone)
+    metrics = Metrics(
+        mean_return=episodes.returns.mean(axis=0),
+        min_return=episodes.returns.min(axis=0),
+        max_return=episodes.returns.max(axis=0),
+        mean_length=episodes.lengths.mean(axis=0),
+        loss=loss,
+        grad_norm=grad_norm,
+        extra=extra,
+    )
+    return TrainState(new_params, opt_state, key), metrics
+
+
+def _without_run_axis(tree):
+    return jax.tree.map(lambda leaf: leaf[..., 0], tree)
+
+
+def _policy(config, params, alone):
+    """The rollout's policy `(obs [E, R, 4], u [E, R]) -> actions [E, R]` (without the run axes
+    for a run alone) of the runs' parameters."""
+    network = config.network
+    if config.hand_gradient:  # parameters taken apart where the rollout's kernels use them
+        return lambda obs, u: policies.network_policy(
+            network, policies.unflatten(params, network))(obs, u)
+    logits = runwise.runwise(functools.partial(policies.logits, network), batched=not alone)
+
+    def policy(obs, u):
+        return policies.sample_action(
+            logits(params["policy"], obs if alone else jnp.moveaxis(obs, -2, -1)), u)
+
+    return policy
+
+
+def _learn_by_hand(config, train_state, transitions, hyperparams, alone):
+    """The fast path's step: the book's loss and its gradient by `hand_gradient.loss_and_grad`."""
+    del alone  # the gradient takes a run alone apart itself
+    network = config.network
+    # Discounted returns, normalised over every step of every episode of a run.
+    advantages = returns.discount_and_normalize_masked(
+        transitions.reward, transitions.alive, hyperparams.discount
+    )
+    loss, grad_arrays = hand_gradient.loss_and_grad(
+        policies.unflatten(train_state.params, network), network, transitions, advantages)
+    grads = policies.flatten(grad_arrays, network)
+    # The step runs with the runs first: on the last axis, XLA's vectorised and scalar loops
+    # round a run's update differently for different numbers of runs.
+    runs_first = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, -1, 0))
+    runs_last = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, 0, -1))
+    params, opt_state = runs_last(jax.vmap(functools.partial(optimizer_step, config))(
+        *runs_first((grads, train_state.opt_state, train_state.params)),
+        hyperparams.learning_rate,
+    ))
+    # Summed by parameter array: over the one vector, LLVM fuses a few of the squares into the
+    # additions for one number of runs and not another.
+    grad_norm = jax.vmap(global_norm, in_axes=-1)(grad_arrays)
+    return params, opt_state, loss, grad_norm, {}
+
+
+def _learn(config, train_state, transitions, hyperparams, alone):
+    """Any other policy, loss or optimizer: `learn_run` of every run, by `runwise`."""
+    if alone:
+        transitions = jax.tree.map(lambda leaf: leaf[:, :, 0], transitions)
+        args = _without_run_axis((train_state.params, train_state.opt_state, hyperparams))
+    else:  # the run axis last, as `runwise` takes it
+        transitions = transitions._replace(obs=jnp.moveaxis(transitions.obs, -2, -1))
+        args = (train_state.params, train_state.opt_state, hyperparams)
+    batch = losses.Batch(
+        transitions.obs, transitions.action, transitions.reward, transitions.alive,
+        returns.discount_masked(transitions.reward, transitions.alive,
+                                args[2].discount))
+    outs = runwise.runwise(functools.partial(learn_run, config), batched=not alone)(
+        *args[:2], batch, args[2])
+    return jax.tree.map(lambda leaf: leaf[..., None], outs) if alone else outs
+
+
+def learn_run(config, params, opt_state, batch, hyper):
+    """One run's optimizer step on its loss plus the entropy bonus, each network (the policy and
+    a loss's critic) with its own optimizer.
+
+    Returns:
+      (params, opt_state, loss, grad_norm of the policy's gradient, the loss's metrics, with
+      `entropy`, the mean entropy over alive steps, where `config.entropy_coef` is not 0)
+    """
+    loss_fn = losses.resolve(config.loss)
+    apply_fn = _once_per_input(functools.partial(policies.logits, config.network))
+    has_critic = losses.critic(config.loss) is not None
+
+    def total(params):
+        loss, metrics = loss_fn(params if has_critic else params["policy"], apply_fn, batch, hyper)
+        if not config.entropy_coef:  # no run has a bonus (`programs.compiled_program`)
+            return loss, metrics
+        entropy = losses.masked_mean(losses.entropy(apply_fn(params["policy"], batch.obs)),
+                                     batch.alive)
+        return loss - hyper.entropy_coef * entropy, {**metrics, "entropy": entropy}
+
+    (loss, metrics), grads = jax.value_and_grad(total, has_aux=True)(params)
+    optimizer = make_optimizer(config, hyper.learning_rate)
+    stepped = {name: optimizer.update(grads[name], opt_state[name], params[name])
+               for name in params}
+    params = {name: optax.apply_updates(params[name], stepped[name][0]) for name in params}
+    opt_state = {name: stepped[name][1] for name in params}
+    return params, opt_state, loss, global_norm(grads["policy"]), metrics
+
+
+def _once_per_input(apply_fn):
+    """`apply_fn(params, obs)`, computed once for the same arrays (inside one trace): the loss's
+    logits and the entropy bonus's are then one forward pass, and one backward."""
+    computed = {}
+
+    def apply(params, obs):
+        key = (tuple(map(id, jax.tree.leaves(params))), id(obs))
+        if key not in computed:  # the inputs are kept too, so that their ids stay theirs
+            computed[key] = (apply_fn(params, obs), params, obs)
+        return computed[key][0]
+
+    return apply
+
+
+def check_config(config):
+    """Checks the policy, loss and optimizer of `config` by their shapes alone (`jax.eval_shape`),
+    before anything compiles: a ValueError names the field at fault.
+
+    Returns:
+      The names of the loss's metrics (`Metrics.extra`), in the order of their leaves.
+    """
+    optimizer = make_optimizer(config, 0.01)
+    if not isinstance(optimizer, optax.GradientTransformation):
+        raise ValueError(f"optimizer: the function must return an optax.GradientTransformation, "
+                         f"got {type(optimizer).__name__}")
+    if config.hand_gradient:
+        return ()
+    floats = jnp.result_type(float)
+    scalar = jax.ShapeDtypeStruct((), floats)
+    hyper = Hyperparams(scalar, scalar, scalar)
+    steps = (config.max_steps, config.episodes)
+    batch = losses.Batch(jax.ShapeDtypeStruct((*steps, 4), floats),
+                         jax.ShapeDtypeStruct(steps, jnp.int32), jax.ShapeDtypeStruct(steps, floats),
+                         jax.ShapeDtypeStruct(steps, bool), jax.ShapeDtypeStruct(steps, floats))
+    params, opt_state = jax.eval_shape(
+        lambda key: init_run(config, key, Hyperparams(0.01, 0.95, 0.0)),
+        jax.ShapeDtypeStruct((2,), jnp.uint32))
+    jax.eval_shape(functools.partial(policies.logits, config.network), params["policy"], batch.obs)
+    loss_fn = losses.resolve(config.loss)
+    apply_fn = functools.partial(policies.logits, config.network)
+    has_critic = losses.critic(config.loss) is not None
+    out = jax.eval_shape(lambda p, b, h: loss_fn(p if has_critic else p["policy"], apply_fn, b, h),
+                         params, batch, hyper)
+    if not (isinstance(out, tuple) and len(out) == 2 and _is_scalar(out[0])
+            and isinstance(out[1], dict) and all(map(_is_scalar, out[1].values()))):
+        raise ValueError(f"loss: must return (a scalar loss, a dict of scalar metrics), got "
+                         f"{jax.tree.map(lambda leaf: leaf.shape, out)}")
+    metrics = jax.eval_shape(functools.partial(learn_run, config),
+                             params, opt_state, batch, hyper)[-1]
+    return tuple(sorted(metrics))
+
+
+def _is_scalar(leaf):
+    return hasattr(leaf, "shape") and leaf.shape == ()

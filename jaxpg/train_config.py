@@ -1,0 +1,158 @@
+"""The settings of a training run: `TrainConfig`, and the hyperparameters a sweep varies."""
+
+import dataclasses
+import inspect
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+
+import jax
+import numpy as np
+import optax
+
+from jaxpg import cartpole, losses, policies
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Settings of a training run: the book's by default.
+
+    `learning_rate`, `discount` and `entropy_coef` are hyperparameters that a sweep varies within
+    one compiled program; every other field fixes the program's shapes or structure.
+
+    Attributes:
+      iterations: optimizer steps, each on `episodes` fresh episodes of at most `max_steps` steps.
+      hidden, activation: the default policy network (`policies.PolicyNetwork`), used where
+        `policy` is None; `hidden=()` is a linear policy.
+      policy: optional flax module mapping observations `[..., 4]` to the logit of P(push left),
+        `[...]` or `[..., 1]`, or to the two logits of a categorical policy `[..., 2]`.
+      loss: "reinforce" (the book's), "reward-to-go", "baseline", or a function
+        `loss(params, apply_fn, batch, hyper) -> (loss, metrics)` (`jaxpg.losses`).
+      optimizer: an optax optimizer's name (one taking a `learning_rate`), or a function
+        `learning_rate -> optax.GradientTransformation`.
+      env: a preset name or a `CartPoleParams`.
+      solved_return: the mean return that counts as solved.
+      learning_rate, discount, entropy_coef: the hyperparameters (`Hyperparams`); the entropy
+        bonus `-entropy_coef * mean entropy` is added to any loss.
+    """
+
+    # Fix the program.
+    iterations: int = 150
+    episodes: int = 10  # per update
+    max_steps: int = 200  # per episode
+    hidden: tuple[int, ...] = (5,)
+    activation: str = "elu"
+    policy: Any = None
+    loss: str | Callable = "reinforce"
+    optimizer: str | Callable = "adam"
+    env: str | cartpole.CartPoleParams = "CartPole-v1"
+    solved_return: float = 195.0
+    # Varied by sweeps within one program.
+    learning_rate: float = 0.01
+    discount: float = 0.95
+    entropy_coef: float = 0.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+        for name in ("iterations", "episodes", "max_steps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name}: must be a positive integer, got {value!r}")
+        policies.check_network(self.hidden, self.activation)
+        if self.policy is not None and not isinstance(self.policy, nn.Module):
+            raise ValueError(f"policy: expected None or a flax.linen.Module, got "
+                             f"{type(self.policy).__name__}")
+        losses.resolve(self.loss)
+        check_optimizer(self.optimizer)
+        check_hyperparams(self.learning_rate, self.discount, self.entropy_coef)
+        self.env_params  # validates
+
+    @property
+    def env_params(self):
+        if isinstance(self.env, cartpole.CartPoleParams):
+            cartpole.check_params(self.env)
+            return self.env
+        return cartpole.make_params(self.env)
+
+    @property
+    def network(self):
+        """The policy module: `policy`, or the default network of `hidden` and `activation`."""
+        if self.policy is not None:
+            return self.policy
+        return policies.PolicyNetwork(hidden=self.hidden, activation=self.activation)
+
+    @property
+    def hyperparams(self):
+        return Hyperparams(self.learning_rate, self.discount, self.entropy_coef)
+
+    @property
+    def hand_gradient(self):
+        """Whether training takes the fast path: the default network with the book's loss and no
+        entropy bonus, whose gradient `jaxpg.hand_gradient` computes."""
+        return self.policy is None and self.loss == "reinforce" and self.entropy_coef == 0
+
+
+class Hyperparams(NamedTuple):
+    """The settings a sweep varies: scalars, or `[R]` arrays for R runs."""
+
+    learning_rate: jax.Array
+    discount: jax.Array
+    entropy_coef: jax.Array
+
+
+def check_hyperparams(learning_rate, discount, entropy_coef=0.0):
+    """Raises a ValueError unless every learning rate is positive and finite, every discount in
+    (0, 1] and every entropy coefficient finite and at least 0."""
+    # numpy, not jnp: building a TrainConfig must not start JAX (jax.distributed comes first).
+    checks = (("learning_rate", learning_rate, lambda v: 0 < v < np.inf, "positive and finite"),
+              ("discount", discount, lambda v: 0 < v <= 1, "in (0, 1]"),
+              ("entropy_coef", entropy_coef, lambda v: 0 <= v < np.inf, "finite and at least 0"))
+    for name, values, ok, allowed in checks:
+        try:
+            numbers = np.atleast_1d(np.asarray(values, dtype=np.float64))
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: must be a number, got {values!r}") from None
+        if numbers.ndim != 1:
+            raise ValueError(f"{name}: must be a number, got {values!r}")
+        for value in numbers.tolist():
+            if not ok(value):
+                raise ValueError(f"{name}: must be {allowed}, got {value}")
+
+
+def _optimizer_factories():
+    """optax's optimizers: the functions whose first parameter is `learning_rate`."""
+    factories = {}
+    for name in dir(optax):
+        fn = getattr(optax, name)
+        if name.startswith("_") or not inspect.isfunction(fn):
+            continue
+        try:
+            params = list(inspect.signature(fn).parameters)
+        except (TypeError, ValueError):
+            continue
+        if params[:1] == ["learning_rate"]:
+            factories[name] = fn
+    return factories
+
+
+OPTIMIZERS = _optimizer_factories()
+
+
+def check_optimizer(name):
+    """Raises a ValueError unless `name` is an optax optimizer's name or a function (whose
+    result `check_optimizer_factory` checks when training starts)."""
+    if callable(name):
+        return
+    if name not in OPTIMIZERS:
+        raise ValueError(
+            f"optimizer: unknown {name!r}; allowed: optax optimizers such as adam, sgd, rmsprop "
+            f"({len(OPTIMIZERS)} in all: {', '.join(sorted(OPTIMIZERS))})"
+        )
+
+
+def make_optimizer(config, learning_rate):
+    """The optax optimizer of `config` at `learning_rate`."""
+    if callable(config.optimizer):
+        return config.optimizer(learning_rate)
+    return OPTIMIZERS[config.optimizer](learning_rate=learning_rate)

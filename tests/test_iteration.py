@@ -1,0 +1,165 @@
+"""One iteration: the fast path's optimizer step as optax defines it; any policy, loss and
+optimizer, checked before compiling, trained alike alone and in a sweep."""
+
+import dataclasses
+
+import chex
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+from conftest import assert_trained_alike, xla_compiles
+
+from jaxpg import (
+    TrainConfig,
+    TrainResult,
+    iteration,
+    losses,
+    policies,
+    sweep,
+    train,
+    train_config,
+)
+
+
+def _optax_steps(config, grads, params):
+    """optax's own steps of `config.optimizer` on `params`, whatever their structure."""
+    optimizer = train_config.make_optimizer(config, config.learning_rate)
+    state = optimizer.init(params)
+    for grad in grads:
+        updates, state = optimizer.update(grad, state, params)
+        params = optax.apply_updates(params, updates)
+    return params
+
+
+def _optimizer_steps(config, grads, params):
+    """The same steps as `iteration.optimizer_step` takes them, on flat parameters."""
+    flat = policies.flatten(params, config.network)
+    _, opt_state = iteration.init_run(config, jax.random.PRNGKey(0), config.hyperparams)
+    for grad in grads:
+        flat, opt_state = iteration.optimizer_step(
+            config, policies.flatten(grad, config.network), opt_state, flat,
+            config.learning_rate)
+    return flat
+
+
+@pytest.mark.parametrize("name", sorted(iteration.ELEMENTWISE_OPTIMIZERS) + ["lamb", "adafactor"])
+def test_optimizers_step_as_optax_defines_them_on_each_array(name):
+    """The optimizers stepped on the flat vector update each parameter as they would per array;
+    the others (lamb's per-layer trust ratio, adafactor's factored moments) step per array."""
+    config = TrainConfig(optimizer=name, hidden=(5, 3))
+    params = policies.init_network(jax.random.PRNGKey(1), config.network)
+    rng = np.random.default_rng(2)
+    grads = [jax.tree.map(lambda leaf: rng.normal(size=leaf.shape).astype(np.float32), params)
+             for _ in range(3)]
+    expected = policies.flatten(_optax_steps(config, grads, params), config.network)
+    np.testing.assert_allclose(_optimizer_steps(config, grads, params), expected,
+                               rtol=1e-6, atol=1e-7)
+    if name not in iteration.ELEMENTWISE_OPTIMIZERS:  # on one vector, another update
+        one_vector = _optax_steps(config, [policies.flatten(g, config.network) for g in grads],
+                                  policies.flatten(params, config.network))
+        assert not np.allclose(one_vector, expected, rtol=1e-3, atol=1e-4)
+
+
+# --- Any policy, loss and optimizer: differentiated by JAX, run by `runwise` --------------------
+
+SMALL = TrainConfig(iterations=3, episodes=3, max_steps=20)
+
+
+class BookModule(nn.Module):
+    """The default network's shape as a user writes it; `outputs` logits per observation."""
+
+    outputs: int = 1
+
+    @nn.compact
+    def __call__(self, obs):
+        logit = nn.Dense(1)(nn.elu(nn.Dense(5)(obs)))
+        if self.outputs == 2:  # a categorical policy: logits of (left, right)
+            return jnp.concatenate([logit, jnp.zeros_like(logit)], axis=-1)
+        return logit
+
+
+def _seeds_alone_and_together(config, seeds=range(5)):
+    """Parameters, returns and gradient norms bit for bit; the loss's reported values (the loss
+    and its metrics) to a few units in the last place: computed apart from the gradient, they can
+    round differently alone (LLVM fuses a multiplication and an addition into one rounding in one
+    program's layout and not in the other's)."""
+    together = sweep(config, seeds=seeds, show_progress=False)
+    for s in seeds:
+        alone = train(config, seed=s, show_progress=False)
+        beside = jax.tree.map(lambda leaf: leaf[0, s], TrainResult(together.policy_params,
+                                                                   together.metrics))
+        reported = ("loss", "extra")
+        assert_trained_alike(alone._replace(metrics=alone.metrics._replace(loss=0, extra={})),
+                             beside._replace(metrics=beside.metrics._replace(loss=0, extra={})))
+        for name in reported:
+            for got, want in zip(jax.tree.leaves(getattr(alone.metrics, name)),
+                                 jax.tree.leaves(getattr(beside.metrics, name))):
+                np.testing.assert_array_max_ulp(got, want, maxulp=4)
+
+
+@pytest.mark.parametrize("changes", [
+    {"loss": "baseline"},
+    {"entropy_coef": 0.01},
+    {"loss": "reward-to-go", "hidden": ()},
+    {"policy": BookModule()},
+    {"policy": BookModule(), "optimizer": lambda lr: optax.chain(optax.clip_by_global_norm(1.0),
+                                                                  optax.adam(lr))},
+])
+def test_a_seed_trains_alone_as_in_a_sweep(changes):
+    _seeds_alone_and_together(dataclasses.replace(SMALL, **changes))
+
+
+def test_a_categorical_policy_trains_as_its_logit_difference():
+    one = train(dataclasses.replace(SMALL, policy=BookModule(1)), seed=3, show_progress=False)
+    two = train(dataclasses.replace(SMALL, policy=BookModule(2)), seed=3, show_progress=False)
+    chex.assert_trees_all_equal(one, two)
+
+
+def test_a_users_module_learns_to_balance():
+    config = TrainConfig(iterations=60, policy=BookModule(), loss="baseline", entropy_coef=0.001)
+    result = train(config, seed=0, show_progress=False)
+    returns = np.asarray(result.metrics.mean_return)
+    assert returns[-10:].mean() > 2 * returns[:10].mean()
+    assert set(result.metrics.extra) == {"entropy", "value_loss"}
+    assert result.metrics.extra["value_loss"].shape == (60,)
+
+
+def test_the_fast_path_serves_the_default_network_with_the_books_loss_only():
+    assert TrainConfig().hand_gradient
+    assert TrainConfig(hidden=()).hand_gradient
+    for changes in ({"entropy_coef": 0.1}, {"loss": "baseline"}, {"policy": BookModule()}):
+        assert not TrainConfig(**changes).hand_gradient
+
+
+class _Wrong(nn.Module):
+    @nn.compact
+    def __call__(self, obs):
+        return nn.Dense(3)(obs)
+
+
+@pytest.mark.parametrize("changes, match", [
+    ({"policy": _Wrong()}, r"policy: .* must return logits shaped \(20, 3\), \(20, 3, 1\) or "
+                           r"\(20, 3, 2\), got \(20, 3, 3\)"),
+    ({"loss": lambda params, apply_fn, batch, hyper: 0.0}, "loss: must return"),
+    ({"loss": lambda params, apply_fn, batch, hyper: (jnp.zeros(2), {})}, "loss: must return"),
+    ({"loss": lambda params, apply_fn, batch, hyper: (0.0, {"m": jnp.zeros(3)})},
+     "loss: must return"),
+    ({"optimizer": lambda lr: "adam"}, "optimizer: the function must return an optax"),
+    ({"policy": "mlp"}, "policy: expected None or a flax.linen.Module"),
+])
+def test_bad_parts_are_named_before_anything_compiles(changes, match):
+    with xla_compiles() as compiled, pytest.raises(ValueError, match=match):
+        train(dataclasses.replace(SMALL, **changes), show_progress=False)
+    assert not [name for name in compiled if "_iterate_stacked" in name or "init_runs" in name]
+
+
+def test_a_loss_that_becomes_nan_is_reported_with_its_first_iteration():
+    def exploding(params, apply_fn, batch, hyper):
+        loss, metrics = losses.reinforce(params, apply_fn, batch, hyper)
+        return loss + jnp.log(hyper.learning_rate - 0.02), metrics  # NaN at lr 0.01
+
+    with pytest.warns(RuntimeWarning, match="loss: not finite from iteration 0 on"):
+        train(dataclasses.replace(SMALL, loss=exploding), show_progress=False)

@@ -1,0 +1,57 @@
+"""Compiled programs: one per config, and calls of several iterations train as calls of one."""
+
+import dataclasses
+
+import chex
+import jax
+import numpy as np
+import pytest
+from conftest import xla_compiles
+
+from jaxpg import (
+    TrainConfig,
+    policies,
+    programs,
+    reinforce,
+    schedule,
+    train,
+)
+
+
+def test_compiles_once_per_config():
+    config = TrainConfig(iterations=2, episodes=2, max_steps=10)
+    programs._program.cache_clear()
+    with xla_compiles() as compiled:
+        first = train(config, seed=0, show_progress=False)
+        second = train(config, seed=1, show_progress=False)
+        train(dataclasses.replace(config, iterations=3), seed=0, show_progress=False)
+    assert programs._program.cache_info().misses == 1
+    assert compiled.count("jit(_iterate_stacked)") == 1
+    assert not np.array_equal(first.metrics.mean_return, second.metrics.mean_return) or \
+        not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first.policy_params), jax.tree.leaves(second.policy_params)))
+
+
+@pytest.mark.parametrize("num_runs", [1, 2])
+@pytest.mark.parametrize("iterations", [3, programs.ITERATIONS_PER_CALL + 2])
+def test_calls_of_several_iterations_train_as_calls_of_one(num_runs, iterations):
+    config = TrainConfig(iterations=iterations, episodes=2, max_steps=10)
+    program = programs.compiled_program(config)
+    keys = reinforce.run_keys(range(num_runs))
+    hyperparams = jax.tree.map(lambda v: np.full(num_runs, v, np.float32), config.hyperparams)
+    reported = []
+    (result,) = schedule.run(program, config.iterations, [(keys, hyperparams)],
+                              lambda iteration, _: reported.append(iteration))
+    assert reported == list(range(config.iterations))
+    assert [count for _, count in schedule.calls(iterations)] == (
+        [3] if iterations == 3 else [programs.ITERATIONS_PER_CALL, 2])
+
+    state, rows = program.init(keys, hyperparams), []
+    for _ in range(config.iterations):
+        state, metrics = program.iterate(state, hyperparams, np.int32(1))
+        rows.append(np.asarray(metrics)[0])
+    one_at_a_time = program.metrics(np.moveaxis(np.stack(rows), 0, -1))  # [R, I] leaves
+    chex.assert_trees_all_equal(result.metrics, one_at_a_time)
+    chex.assert_trees_all_equal(
+        result.policy_params,
+        jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0),
+                     policies.unflatten(np.asarray(state.params), config.network)))
