@@ -37,7 +37,7 @@ def train(num_seeds, iterations, variant, seed=None):
     `{path of a leaf (jax.tree_util.keystr): leaf [R, ...]}`; `variant` names the config
     (`train_throughput.VARIANTS`)."""
     config = train_config.TrainConfig(iterations=iterations, **VARIANTS[variant])
-    inputs = run_inputs(check_seeds(range(num_seeds)), expand_grid(config, None))
+    inputs = run_inputs(config, check_seeds(range(num_seeds)), expand_grid(config, None))
     if seed is not None:
         inputs = jax.tree.map(lambda x: x[seed:seed + 1], inputs)
     (result,) = schedule.run(programs.compiled_program(config), iterations, [inputs])

@@ -116,7 +116,7 @@ def measure_row(config, num_runs, repeats, variant="builtin"):
     """Compiles the training of `num_runs` seeds, runs it once, then times `repeats` runs."""
     flags.configure_xla(runs=num_runs)  # before JAX starts its backends
     # Seeds 0..R-1 under the config's own settings, passed as a sweep passes them.
-    keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
+    keys, hyperparams = run_inputs(config, check_seeds(range(num_runs)), expand_grid(config, None))
     program = programs.compiled_program(config)
     parts = [(keys, hyperparams)]
     times = compile_programs(program, [block for block, _ in schedule.part_blocks(parts[0])])

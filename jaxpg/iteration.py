@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxpg import hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
-from jaxpg.train_config import Hyperparams, make_optimizer
+from jaxpg.train_config import make_optimizer
 
 
 class TrainState(NamedTuple):
@@ -143,12 +143,14 @@ def iterate(config, train_state, hyperparams):
     key, key_rollout = rng.split(train_state.key)
     alone = is_run_alone(train_state)
     params = _without_run_axis(train_state.params) if alone else train_state.params
+    env_params = config.env_params if hyperparams.env is None else (
+        _without_run_axis(hyperparams.env) if alone else hyperparams.env)
 
     # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
     # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
     episodes = rollout.rollout(
         key_rollout[0] if alone else key_rollout, _policy(config, params, alone),
-        config.env_params, config.episodes, config.max_steps,
+        env_params, config.episodes, config.max_steps,
         lanes=rollout.LANES if alone else 1,
     )
     if alone:
@@ -290,14 +292,14 @@ def check_config(config):
     if config.hand_gradient:
         return ()
     floats = jnp.result_type(float)
-    scalar = jax.ShapeDtypeStruct((), floats)
-    hyper = Hyperparams(scalar, scalar, scalar)
+    hyper = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((), leaf.dtype),
+                         config.hyperparams.per_run())
     steps = (config.max_steps, config.episodes)
     batch = losses.Batch(jax.ShapeDtypeStruct((*steps, 4), floats),
                          jax.ShapeDtypeStruct(steps, jnp.int32), jax.ShapeDtypeStruct(steps, floats),
                          jax.ShapeDtypeStruct(steps, bool), jax.ShapeDtypeStruct(steps, floats))
     params, opt_state = jax.eval_shape(
-        lambda key: init_run(config, key, Hyperparams(0.01, 0.95, 0.0)),
+        lambda key: init_run(config, key, config.hyperparams),
         jax.ShapeDtypeStruct((2,), jnp.uint32))
     jax.eval_shape(functools.partial(policies.logits, config.network), params["policy"], batch.obs)
     loss_fn = losses.resolve(config.loss)

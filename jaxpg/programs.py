@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import executables, policies
+from jaxpg import cartpole, executables, policies
 from jaxpg.iteration import Metrics, check_config, init_runs, is_run_alone, iterate
 from jaxpg.train_config import TrainConfig
 
@@ -21,6 +21,7 @@ class Program(NamedTuple):
     functions (`iterate` an `AloneOrTogether` of two), which `run` prepares before it calls them."""
 
     config: TrainConfig
+    physics_in_runs: bool  # whether the runs' `Hyperparams` carry their physics (`env`)
     extra: tuple[str, ...]  # the names of the loss's metrics, `Metrics.extra`, in leaf order
     # (keys [R, 2], Hyperparams [R], optional policy_params of one run) -> TrainState [R]
     init: Callable
@@ -35,6 +36,12 @@ class Program(NamedTuple):
         fields = len(Metrics._fields) - 1
         return Metrics(*rows[:fields], extra=dict(zip(self.extra, rows[fields:])))
 
+    def hyperparams(self, runs):
+        """`Hyperparams` of `runs` runs as the program takes them (the config's values)."""
+        hyperparams = self.config.hyperparams
+        env = self.config.env_params if self.physics_in_runs else None
+        return hyperparams._replace(env=env).per_run(runs)
+
     def policy_params(self, params):
         """The policy's parameters (leaves `[..., R]`) of a `TrainState`'s `params`."""
         if self.config.hand_gradient:
@@ -42,18 +49,25 @@ class Program(NamedTuple):
         return params["policy"]
 
 
-def compiled_program(config):
+def compiled_program(config, physics_in_runs=False):
     """The jitted `Program` of `config`; `iterate` consumes (donates) the state it is given.
 
     Its functions keep their compiled programs on disk while `executables.enable` is in effect.
 
     Configs that differ only in how many iterations run, what counts as solved, or the values of
     their hyperparameters (but for whether the entropy coefficient is 0: only then can the fast
-    path serve, `TrainConfig.hand_gradient`) share one.
+    path serve, `TrainConfig.hand_gradient`) share one: those values are the runs' `Hyperparams`,
+    arguments of the program. So do configs that differ in their physics, where
+    `physics_in_runs`: the runs' `Hyperparams` then carry it (`env`), rather than the program
+    (`train_config.compiled_physics`).
     """
+    env = config.env_params
+    if physics_in_runs:  # the values come with the runs' `Hyperparams`; only static fields count
+        env = cartpole.V1.replace(integrator=env.integrator,
+                                  sutton_barto_reward=env.sutton_barto_reward)
     return _program(dataclasses.replace(
         config, iterations=1, solved_return=0.0, learning_rate=0.01, discount=0.95,
-        entropy_coef=float(config.entropy_coef != 0)))
+        entropy_coef=float(config.entropy_coef != 0), env=env), physics_in_runs)
 
 
 # Initialising runs once: it is compiled for speed of compilation, not of running, without
@@ -92,7 +106,7 @@ class AloneOrTogether(NamedTuple):
 
 
 @functools.lru_cache(maxsize=32)
-def _program(config):
+def _program(config, physics_in_runs):
     extra = check_config(config)
 
     def jit_iterate(options):
@@ -100,7 +114,7 @@ def _program(config):
                        compiler_options=options)
 
     return Program(
-        config, extra,
+        config, physics_in_runs, extra,
         executables.Stored(
             jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
             "init", config),

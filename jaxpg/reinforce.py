@@ -44,10 +44,10 @@ def train(config=TrainConfig(), seed=0, init_params=None, on_iteration=None, sho
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     check_seed(seed)
     flags.configure_unstarted()
-    program = programs.compiled_program(config)
+    hyperparams = config.hyperparams.per_run()
+    program = programs.compiled_program(config, physics_in_runs=hyperparams.env is not None)
     if init_params is not None:
         init_params = check_init_params(config, init_params)
-    hyperparams = jax.tree.map(lambda v: np.asarray([v], np.float32), config.hyperparams)
     first_run = None if on_iteration is None else (
         lambda i, metrics: on_iteration(i, jax.tree.map(lambda leaf: leaf[0], metrics)))
     with progress.bar(config.iterations, enabled=show_progress) as shown:

@@ -16,9 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxpg import flags, iteration, programs, progress, reinforce, schedule, train_config
+from jaxpg import cartpole, flags, iteration, programs, progress, reinforce, schedule, train_config
 
-GRID_FIELDS = train_config.Hyperparams._fields
+GRID_FIELDS = (*train_config.HYPERPARAMETERS, *train_config.PHYSICS)
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
 
 
@@ -61,23 +61,81 @@ class SweepResult(NamedTuple):
 
 
 def expand_grid(config, grid):
-    """The grid's settings as a list of dicts; fields the grid leaves out keep `config`'s value."""
-    grid = dict(grid or {})
-    unknown = set(grid) - set(GRID_FIELDS)
-    if unknown:
-        raise ValueError(
-            f"grid: unknown field(s) {', '.join(sorted(unknown))}; allowed: {', '.join(GRID_FIELDS)}"
-        )
-    values = []
-    for name in GRID_FIELDS:
-        options = list(np.atleast_1d(grid.get(name, getattr(config, name))).tolist())
-        if not options:
-            raise ValueError(f"grid: {name} needs at least one value")
-        values.append(options)
-    settings = [dict(zip(GRID_FIELDS, combo)) for combo in itertools.product(*values)]
+    """The grid's settings as a list of dicts, each with the hyperparameters and the physical
+    fields that the grid names; fields it leaves out keep `config`'s values.
+
+    Args:
+      config: the `TrainConfig` of every run.
+      grid: None (`config`'s one setting); a dict of field to values, whose product the settings
+        are; or a list of dicts, the settings themselves. Fields: `GRID_FIELDS`.
+
+    Raises:
+      ValueError: naming the field, for an unknown field, an empty or repeated list of values,
+        or a value out of range (a mass at or below 0, a discount above 1, anything not finite).
+    """
+    if grid is None or isinstance(grid, dict):
+        axes = _axes(dict(grid or {}))
+        names = [*train_config.HYPERPARAMETERS, *(n for n in train_config.PHYSICS if n in axes)]
+        values = [axes.get(name, [getattr(config, name, None)]) for name in names]
+        settings = [dict(zip(names, combo)) for combo in itertools.product(*values)]
+    elif isinstance(grid, list | tuple) and grid and all(isinstance(s, dict) for s in grid):
+        named = set().union(*grid)
+        _check_fields(named)
+        settings = [{**{name: getattr(config, name) for name in train_config.HYPERPARAMETERS},
+                     **{name: getattr(config.env_params, name)
+                        for name in train_config.PHYSICS if name in named},
+                     **{name: _number(name, value) for name, value in setting.items()}}
+                    for setting in grid]
+        if len({tuple(sorted(s.items())) for s in settings}) != len(settings):
+            raise ValueError("grid: the list repeats a setting")
+    else:
+        raise ValueError(f"grid: expected None, a dict of field to values or a non-empty list of "
+                         f"dicts, got {grid!r}")
     for setting in settings:
-        train_config.check_hyperparams(**setting)
+        setting_hyperparams(config, setting)  # validates
     return settings
+
+
+def _check_fields(names):
+    unknown = set(names) - set(GRID_FIELDS)
+    if unknown:
+        raise ValueError(f"grid: unknown field(s) {', '.join(sorted(unknown))}; allowed: "
+                         f"{', '.join(GRID_FIELDS)}")
+
+
+def _axes(grid):
+    """A dict grid's axes as lists of Python numbers; a ValueError for an empty or repeated one."""
+    _check_fields(grid)
+    axes = {}
+    for name, values in grid.items():
+        options = [_number(name, value) for value in np.atleast_1d(np.asarray(values)).tolist()]
+        if not options:
+            raise ValueError(f"{name}: the grid needs at least one value")
+        if len(set(options)) != len(options):
+            raise ValueError(f"{name}: the grid repeats a value: {options}")
+        axes[name] = options
+    return axes
+
+
+def _number(name, value):
+    """`value` as a finite Python float; a ValueError naming `name` otherwise."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: must be a number, got {value!r}") from None
+    if not np.isfinite(number):
+        raise ValueError(f"{name}: must be finite, got {number}")
+    return number
+
+
+def setting_hyperparams(config, setting):
+    """The `Hyperparams` (scalars) of one setting of `expand_grid`, validated."""
+    hyper = {name: setting[name] for name in train_config.HYPERPARAMETERS}
+    train_config.check_hyperparams(**hyper)
+    env = config.env_params.replace(
+        **{name: value for name, value in setting.items() if name in train_config.PHYSICS})
+    cartpole.check_params(env)
+    return train_config.Hyperparams(**hyper, env=env)
 
 
 def check_seeds(seeds):
@@ -126,12 +184,13 @@ def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_pr
     seeds = check_seeds(seeds)
     settings = expand_grid(config, grid)
     check_memory_budget(memory_budget)
-    inputs = run_inputs(seeds, settings)
+    inputs = run_inputs(config, seeds, settings)
     num_runs = inputs[0].shape[0]
     flags.configure_unstarted()
     # The fast path only where no run has an entropy bonus: one program serves every setting.
     entropy = max(setting["entropy_coef"] for setting in settings)
-    program = programs.compiled_program(dataclasses.replace(config, entropy_coef=entropy))
+    program = programs.compiled_program(dataclasses.replace(config, entropy_coef=entropy),
+                                        physics_in_runs=inputs[1].env is not None)
     if memory_budget is None:
         chunk = chunk_size(num_runs, jax.device_count())
     else:
@@ -159,19 +218,20 @@ def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_pr
     return SweepResult(seeds, settings, result.policy_params, result.metrics, summary)
 
 
-def run_inputs(seeds, settings):
+def run_inputs(config, seeds, settings):
     """The key and hyperparameters of every run, on the host, setting-major.
 
     Returns:
-      (keys `[R, 2]` uint32, `Hyperparams` with `[R]` float32 leaves) as numpy arrays, where
-      R = G * S and run g * S + s is seed s under setting g.
+      (keys `[R, 2]` uint32, `Hyperparams` with `[R]` leaves) as numpy arrays, where
+      R = G * S and run g * S + s is seed s under setting g. Their physics (`env`) is None where
+      every setting has `config`'s, a preset's (`train_config.compiled_physics`).
     """
     keys = np.tile(np.asarray(reinforce.run_keys(seeds)), (len(settings), 1))
-    hyperparams = train_config.Hyperparams(**{
-        name: np.repeat(np.asarray([s[name] for s in settings], np.float32), seeds.size)
-        for name in GRID_FIELDS
-    })
-    return keys, hyperparams
+    hypers = [setting_hyperparams(config, setting) for setting in settings for _ in seeds]
+    if all(hyper.env == config.env_params for hyper in hypers) and (
+            train_config.compiled_physics(config.env_params)):
+        hypers = [hyper._replace(env=None) for hyper in hypers]
+    return keys, train_config.stack(hypers)
 
 
 def _take(tree, index):
@@ -222,9 +282,9 @@ def device_bytes(program, iterations, num_runs):
     blocks, at_once = len(bounds), min(len(bounds), schedule.usable_cores())
     placed = jax.sharding.SingleDeviceSharding(device)
     keys = jax.ShapeDtypeStruct((size, 2), jnp.uint32, sharding=placed)
-    hyperparams = train_config.Hyperparams(
-        *[jax.ShapeDtypeStruct((size,), jnp.float32, sharding=placed)] * len(GRID_FIELDS)
-    )
+    hyperparams = jax.tree.map(
+        lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=placed),
+        program.hyperparams(size))
     state = jax.tree.map(
         lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=placed),
         program.init.eval_shape(keys, hyperparams),

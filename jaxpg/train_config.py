@@ -84,7 +84,10 @@ class TrainConfig:
 
     @property
     def hyperparams(self):
-        return Hyperparams(self.learning_rate, self.discount, self.entropy_coef)
+        """The config's `Hyperparams` (`env` None for a preset's physics, `compiled_physics`)."""
+        env = self.env_params
+        return Hyperparams(self.learning_rate, self.discount, self.entropy_coef,
+                           None if compiled_physics(env) else env)
 
     @property
     def hand_gradient(self):
@@ -94,11 +97,48 @@ class TrainConfig:
 
 
 class Hyperparams(NamedTuple):
-    """The settings a sweep varies: scalars, or `[R]` arrays for R runs."""
+    """The settings a sweep varies within one program: scalars, or `[R]` arrays for R runs."""
 
     learning_rate: jax.Array
     discount: jax.Array
     entropy_coef: jax.Array
+    # Each run's physics; None for a preset's (`compiled_physics`), the config's.
+    env: cartpole.CartPoleParams | None
+
+    def per_run(self, runs=1):
+        """These settings for `runs` runs: numpy `[runs]` leaves, floats as training takes them
+        (the optimizer's in float32, the physics in JAX's float, `max_steps` in int32)."""
+        return stack([self] * runs)
+
+
+def compiled_physics(env_params):
+    """Whether training compiles `env_params` into its program, as constants: a preset's physics
+    (`cartpole.PRESETS`) are, so that the book's runs train as they always have; any other
+    physics comes with the runs' `Hyperparams`, so that one program serves every value (XLA folds
+    constants, which rounds some steps otherwise than the same values passed in)."""
+    return any(env_params == preset for preset in cartpole.PRESETS.values())
+
+
+# Hyperparameters that a sweep may vary, and the physical fields of `CartPoleParams`.
+HYPERPARAMETERS = ("learning_rate", "discount", "entropy_coef")
+PHYSICS = ("gravity", "masscart", "masspole", "length", "force_mag", "tau", "x_threshold",
+           "theta_threshold_radians")
+
+
+def stack(settings):
+    """`Hyperparams` of R runs from a list of R scalar ones (all with the same static physics)."""
+    floats = jax.dtypes.canonicalize_dtype(float)
+
+    def column(*values):
+        if isinstance(values[0], int | np.integer) and not isinstance(values[0], bool):
+            return np.asarray(values, np.int32)
+        return np.asarray(values, floats)
+
+    env = None if settings[0].env is None else jax.tree.map(
+        column, *[setting.env for setting in settings])
+    hyper = [np.asarray([getattr(s, name) for s in settings], np.float32)
+             for name in HYPERPARAMETERS]
+    return Hyperparams(*hyper, env)
 
 
 def check_hyperparams(learning_rate, discount, entropy_coef=0.0):

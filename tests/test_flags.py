@@ -30,7 +30,7 @@ config = train_config.TrainConfig(iterations=12, episodes=3, max_steps=40)
 program = programs.compiled_program(config)
 saved = {}
 for num_runs in (1, 3):
-    keys, hyperparams = run_inputs(check_seeds(range(num_runs)), expand_grid(config, None))
+    keys, hyperparams = run_inputs(config, check_seeds(range(num_runs)), expand_grid(config, None))
     (result,) = schedule.run(program, config.iterations, [(keys, hyperparams)])
     for name, leaf in result.metrics.columns().items():
         saved[f"{num_runs}-{name}"] = leaf
@@ -116,7 +116,7 @@ from jaxpg.sweep import check_seeds, expand_grid, run_inputs
 config = train_config.TrainConfig()
 program = programs.compiled_program(config)
 for runs in (1, schedule.CPU_BLOCK):
-    keys, hyperparams = run_inputs(check_seeds(range(runs)), expand_grid(config, None))
+    keys, hyperparams = run_inputs(config, check_seeds(range(runs)), expand_grid(config, None))
     state = program.init(keys, hyperparams)
     text = program.iterate.lower(state, hyperparams, np.int32(1)).compile().as_text()
     entry = text[text.index("ENTRY"):]

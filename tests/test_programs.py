@@ -37,7 +37,7 @@ def test_calls_of_several_iterations_train_as_calls_of_one(num_runs, iterations)
     config = TrainConfig(iterations=iterations, episodes=2, max_steps=10)
     program = programs.compiled_program(config)
     keys = reinforce.run_keys(range(num_runs))
-    hyperparams = jax.tree.map(lambda v: np.full(num_runs, v, np.float32), config.hyperparams)
+    hyperparams = config.hyperparams.per_run(num_runs)
     reported = []
     (result,) = schedule.run(program, config.iterations, [(keys, hyperparams)],
                               lambda iteration, _: reported.append(iteration))

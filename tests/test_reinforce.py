@@ -50,7 +50,7 @@ def test_progress_reports_every_iteration(capsys):
 
     config = TrainConfig(iterations=5, episodes=2, max_steps=10)
     stream = io.StringIO()
-    hyperparams = jax.tree.map(lambda v: jnp.asarray([v], jnp.float32), config.hyperparams)
+    hyperparams = config.hyperparams.per_run()
     with progress.bar(config.iterations, stream=stream) as on_iteration:
         (result,) = schedule.run(programs.compiled_program(config), config.iterations,
                                   [(reinforce.run_keys([0]), hyperparams)], on_iteration)

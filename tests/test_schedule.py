@@ -21,7 +21,7 @@ def test_a_run_trains_the_same_beside_a_thousand_others():
     program = programs.compiled_program(config)
 
     def train_runs(seeds):
-        hyperparams = jax.tree.map(lambda v: np.full(len(seeds), v, np.float32), config.hyperparams)
+        hyperparams = config.hyperparams.per_run(len(seeds))
         (result,) = schedule.run(program, config.iterations,
                                   [(reinforce.run_keys(seeds), hyperparams)])
         return result
@@ -36,7 +36,7 @@ def test_a_run_trains_the_same_beside_a_thousand_others():
 def test_blocks_on_several_threads_report_every_iteration_in_order():
     config = TrainConfig(iterations=4, episodes=2, max_steps=10)
     num_runs = 3 * schedule.CPU_BLOCK + 5  # four blocks over the threads
-    hyperparams = jax.tree.map(lambda v: np.full(num_runs, v, np.float32), config.hyperparams)
+    hyperparams = config.hyperparams.per_run(num_runs)
     reported = []
     (result,) = schedule.run(programs.compiled_program(config), config.iterations,
                               [(reinforce.run_keys(np.arange(num_runs)), hyperparams)],
@@ -91,7 +91,7 @@ def test_a_failing_run_raises_instead_of_hanging():
         def __call__(self, train_state, hyperparams, count):
             raise RuntimeError("device lost")
 
-    hyperparams = jax.tree.map(lambda v: np.full(300, v, np.float32), config.hyperparams)
+    hyperparams = config.hyperparams.per_run(300)
     with pytest.raises(RuntimeError, match="device lost"):
         schedule.run(program._replace(iterate=Failing()), config.iterations,
                       [(reinforce.run_keys(np.arange(300)), hyperparams)], lambda *_: None)
