@@ -6,14 +6,17 @@ and `load(DIR)` reads), holding a msgpack map written by `flax.serialization.msg
     format          "jaxpg-checkpoint": marks the file as a jaxpg checkpoint
     format_version  1 (an integer): bumped when the layout changes; a reader refuses newer versions
     jaxpg_version   the `jaxpg.__version__` that wrote the file, e.g. "0.1.0"
-    config          the `TrainConfig` as a map of its fields; `hidden` is a list, and `env` is
-                    either a preset name ("CartPole-v1") or a map of `CartPoleParams` fields
+    config          the `TrainConfig` as a map of its fields; `hidden` is a list, `env` is
+                    either a preset name ("CartPole-v1") or a map of `CartPoleParams` fields,
+                    and `policy`, `loss` and `optimizer` are nil or a name, or, for a user's
+                    module or function, a map {"object": its qualified name, "repr": ...}:
+                    `load` then takes the object itself from the caller
     policy_params   the flax state dict of the policy network, e.g.
                     {"params": {"Dense_0": {"kernel": [4, 5], "bias": [5]}, "Dense_1": {...}}},
                     arrays stored as flax's msgpack ndarray extension (dtype, shape, raw bytes),
                     float32 or float64 and finite
     metrics         nil, or a map of `Metrics` fields to float32 or float64 arrays (`[I]`
-                    per-iteration statistics)
+                    per-iteration statistics), `extra` a map of the loss's own metrics
 
 Any msgpack reader can open the file; flax's `msgpack_restore` turns the arrays back into numpy.
 
@@ -29,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from jaxpg import cartpole, policies, reinforce, results
+from jaxpg import cartpole, iteration, policies, results, train_config
 
 FORMAT = "jaxpg-checkpoint"
 FORMAT_VERSION = 1
@@ -40,9 +43,9 @@ class Checkpoint(NamedTuple):
     """A loaded checkpoint."""
 
     policy_params: dict  # the policy network's parameters, as jax arrays
-    config: reinforce.TrainConfig
+    config: train_config.TrainConfig
     version: str  # the jaxpg version that wrote it
-    metrics: reinforce.Metrics | None
+    metrics: iteration.Metrics | None
 
 
 # --- Saving --------------------------------------------------------------------------------------
@@ -61,9 +64,9 @@ def save(path, policy_params, config, metrics=None):
     Returns:
       The `pathlib.Path` written.
     """
-    if not isinstance(config, reinforce.TrainConfig):
+    if not isinstance(config, train_config.TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
-    if metrics is not None and not isinstance(metrics, reinforce.Metrics):
+    if metrics is not None and not isinstance(metrics, iteration.Metrics):
         raise ValueError(f"metrics: expected a Metrics or None, got {type(metrics).__name__}")
     _check_params_match(policy_params, config, "policy_params")
     path = pathlib.Path(path)
@@ -96,6 +99,8 @@ def config_to_dict(config):
         value = getattr(config, field.name)
         if field.name == "hidden":
             value = [int(size) for size in value]
+        elif field.name in _OBJECTS:
+            value = _describe(value)
         elif isinstance(value, cartpole.CartPoleParams):
             value = {
                 name: _scalar(getattr(value, name), f"config.env.{name}")
@@ -117,26 +122,63 @@ def _scalar(value, name):
     return value.item()
 
 
-def config_from_dict(fields):
-    """The `TrainConfig` of a checkpoint's `config` entry."""
+# Fields that may hold a user's object (a module, a function): saved as a description, given back
+# to `load` by the caller, whose code defines them.
+_OBJECTS = ("policy", "loss", "optimizer")
+
+
+def _describe(value):
+    """A config field's value as saved: None or a name as it is; an object as its class or
+    function's qualified name (with its fields, for a flax module)."""
+    if value is None or isinstance(value, str):
+        return value
+    kind = value if callable(value) and not hasattr(value, "__dataclass_fields__") else type(value)
+    return {"object": f"{kind.__module__}.{kind.__qualname__}", "repr": repr(value)}
+
+
+def _require_objects(fields, objects):
+    """Raises a ValueError naming a field saved as a user's object that `objects` lacks."""
+    for name in _OBJECTS:
+        if isinstance(fields, dict) and isinstance(fields.get(name), dict) and (
+                objects.get(name) is None):
+            raise ValueError(
+                f"{name}: the checkpoint was trained with {fields[name].get('object')}; pass it: "
+                f"checkpoint.load(path, {name}=...)")
+
+
+def config_from_dict(fields, objects=None):
+    """The `TrainConfig` of a checkpoint's `config` entry.
+
+    Args:
+      fields: the entry.
+      objects: the policy module, loss or optimizer function by field name, for the fields saved
+        as a description of the user's object; a ValueError names the field where one is missing.
+    """
     fields = dict(fields)
-    unknown = set(fields) - {f.name for f in dataclasses.fields(reinforce.TrainConfig)}
+    objects = objects or {}
+    _require_objects(fields, objects)
+    for name in _OBJECTS:
+        if isinstance(fields.get(name), dict):
+            fields[name] = objects[name]
+    unknown = set(fields) - {f.name for f in dataclasses.fields(train_config.TrainConfig)}
     if unknown:
         raise ValueError(f"unknown config field(s) {', '.join(sorted(unknown))}")
     if isinstance(fields.get("env"), dict):
         fields["env"] = cartpole.CartPoleParams(**fields["env"])
     if "hidden" in fields:
         fields["hidden"] = tuple(fields["hidden"])
-    return reinforce.TrainConfig(**fields)
+    return train_config.TrainConfig(**fields)
 
 
 def _check_params_match(policy_params, config, where):
-    """Raises a ValueError unless `policy_params` has the shapes of `config`'s network."""
+    """Raises a ValueError unless `policy_params` has the shapes of `config`'s policy's own."""
     shapes = jax.tree.map(np.shape, serialization.to_state_dict(policy_params))
-    want = policies.parameter_shapes(config.network)
+    want = jax.tree.map(lambda leaf: leaf.shape, jax.eval_shape(
+        lambda key: policies.init_network(key, config.network),
+        jax.ShapeDtypeStruct((2,), np.uint32)))
     if shapes != want:
         raise ValueError(
-            f"{where}: parameters do not fit the network of hidden={config.hidden}; "
+            f"{where}: parameters do not fit the policy {_describe(config.network)}; "
             f"expected shapes {want}, got {shapes}"
         )
 
@@ -154,11 +196,14 @@ def resolve(path):
     return path
 
 
-def load(path):
+def load(path, policy=None, loss=None, optimizer=None):
     """Loads a checkpoint written by `save`.
 
     Args:
       path: a checkpoint file, or a directory holding `policy.msgpack`.
+      policy, loss, optimizer: the objects that trained it where they were a user's own (a flax
+        module, functions), which the checkpoint names but cannot hold: the same module class
+        with the same fields (its parameters are checked against it), and the functions.
 
     Returns:
       `Checkpoint(policy_params, config, version, metrics)`.
@@ -187,16 +232,19 @@ def load(path):
             f"(up to {FORMAT_VERSION}); upgrade jaxpg (the file was written by jaxpg "
             f"{payload.get('jaxpg_version')})"
         )
+    objects = {"policy": policy, "loss": loss, "optimizer": optimizer}
+    _require_objects(payload.get("config"), objects)
     try:
         version = str(payload["jaxpg_version"])
-        config = config_from_dict(payload["config"])
+        config = config_from_dict(payload["config"], objects)
         _check_floats(payload["policy_params"], "policy_params", finite=True)
         policy_params = jax.tree.map(jnp.asarray, payload["policy_params"])
         _check_params_match(policy_params, config, "policy_params")
         metrics = payload.get("metrics")
         if metrics is not None:
             _check_floats(metrics, "metrics", finite=False)  # a diverged run's are not finite
-            metrics = reinforce.Metrics(**{k: jnp.asarray(v) for k, v in metrics.items()})
+            metrics = iteration.Metrics(**{k: jax.tree.map(jnp.asarray, v)
+                                           for k, v in metrics.items()})
     except (AttributeError, KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: damaged jaxpg checkpoint ({type(e).__name__}: {e})") from None
     return Checkpoint(policy_params, config, version, metrics)

@@ -31,6 +31,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _int_list(text):
+    if not text.strip():
+        return ()  # `--hidden ''`: no hidden layer
     try:
         return tuple(int(v) for v in text.split(","))
     except ValueError:
@@ -59,14 +61,16 @@ def _bytes(text):
 
 
 def _add_training_args(parser):
-    from jaxpg.reinforce import TrainConfig
+    from jaxpg.losses import BUILT_IN
+    from jaxpg.train_config import TrainConfig
 
     d = TrainConfig()
     parser.add_argument("--iterations", type=int, default=d.iterations, help="updates (default %(default)s)")
     parser.add_argument("--episodes", type=int, default=d.episodes, help="episodes per update (default %(default)s)")
     parser.add_argument("--max-steps", type=int, default=d.max_steps, help="steps per episode (default %(default)s)")
     parser.add_argument("--optimizer", default=d.optimizer, help="an optax optimizer (default %(default)s)")
-    parser.add_argument("--hidden", type=_int_list, default=d.hidden, help="hidden layer sizes, e.g. 5 or 32,32 (default 5)")
+    parser.add_argument("--hidden", type=_int_list, default=d.hidden, help="hidden layer sizes, e.g. 5 or 32,32; '' for a linear policy (default 5)")
+    parser.add_argument("--loss", choices=list(BUILT_IN), default=d.loss, help="(default %(default)s)")
     parser.add_argument("--activation", default=d.activation, help="hidden activation (default %(default)s)")
     parser.add_argument("--env", default=d.env, help="CartPole-v1 or CartPole-v0 (default %(default)s)")
     parser.add_argument("--solved-return", type=float, default=d.solved_return, help="mean return that counts as solved (default %(default)s)")
@@ -75,7 +79,7 @@ def _add_training_args(parser):
 
 
 def _config(args, **hyperparams):
-    from jaxpg.reinforce import TrainConfig
+    from jaxpg.train_config import TrainConfig
 
     return TrainConfig(
         iterations=args.iterations,
@@ -84,6 +88,7 @@ def _config(args, **hyperparams):
         hidden=args.hidden,
         activation=args.activation,
         optimizer=args.optimizer,
+        loss=args.loss,
         env=args.env,
         solved_return=args.solved_return,
         **hyperparams,
@@ -147,14 +152,15 @@ def cmd_train(args):
     from jaxpg import checkpoint, plots, results
     from jaxpg.reinforce import train
 
-    config = _config(args, learning_rate=args.lr, discount=args.discount)
+    config = _config(args, learning_rate=args.lr, discount=args.discount,
+                     entropy_coef=args.entropy_coef)
     check_int("seed", args.seed, 0)
     out = results.claim(args.out)  # held until the results are in place: a second run is refused
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     result = train(config, seed=args.seed, show_progress=not args.quiet)
     seconds = time.perf_counter() - start
-    metrics = {name: np.asarray(v) for name, v in result.metrics._asdict().items()}
+    metrics = {name: np.asarray(v) for name, v in result.metrics.columns().items()}
     final = float(metrics["mean_return"][-10:].mean())
     with results.staged(out) as stage:
         checkpoint.save(stage / checkpoint.FILENAME, result.policy_params, config, result.metrics)
@@ -202,8 +208,9 @@ def cmd_sweep(args):
 
     if args.seeds < 1:
         raise ValueError(f"seeds: must be a positive integer, got {args.seeds}")
-    config = _config(args, learning_rate=args.lr[0], discount=args.discount[0])
-    grid = {"learning_rate": args.lr, "discount": args.discount}
+    config = _config(args, learning_rate=args.lr[0], discount=args.discount[0],
+                     entropy_coef=args.entropy_coef[0])
+    grid = {"learning_rate": args.lr, "discount": args.discount, "entropy_coef": args.entropy_coef}
     expand_grid(config, grid)  # validates before compiling
     out = (results.claim if writes_results else results.check_out_dir)(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
@@ -219,11 +226,13 @@ def cmd_sweep(args):
         np.savez_compressed(stage / "metrics.npz", seeds=swept.seeds,
                             learning_rate=[g["learning_rate"] for g in swept.grid],
                             discount=[g["discount"] for g in swept.grid],
-                            **swept.metrics._asdict())
+                            entropy_coef=[g["entropy_coef"] for g in swept.grid],
+                            **swept.metrics.columns())
         num_settings, num_seeds = s.final_return.shape
         results.write_csv(stage / "runs.csv", {
             "learning_rate": np.repeat([g["learning_rate"] for g in swept.grid], num_seeds),
             "discount": np.repeat([g["discount"] for g in swept.grid], num_seeds),
+            "entropy_coef": np.repeat([g["entropy_coef"] for g in swept.grid], num_seeds),
             "seed": np.tile(swept.seeds, num_settings),
             "last_10_mean_return": s.final_return.ravel(),
             "first_solved_iteration": s.first_solved.ravel(),
@@ -289,7 +298,8 @@ def cmd_conformance(args):
 def cmd_reproduce(args):
     from jaxpg import policies, returns
     from jaxpg.evaluate import evaluate, gymnasium_reset_states
-    from jaxpg.reinforce import TrainConfig, train
+    from jaxpg.reinforce import train
+    from jaxpg.train_config import TrainConfig
 
     _enable_compilation_cache(args.no_cache)
     print("Basic policy, 500 episodes of 200 steps from Gymnasium's reset(seed=episode):")
@@ -332,6 +342,7 @@ def build_parser():
     p.add_argument("--seed", type=int, default=42, help="(default %(default)s)")
     p.add_argument("--lr", type=float, default=0.01, help="learning rate (default %(default)s)")
     p.add_argument("--discount", type=float, default=0.95, help="(default %(default)s)")
+    p.add_argument("--entropy-coef", type=float, default=0.0, help="weight of the entropy bonus (default %(default)s)")
     p.add_argument("--out", default="runs/train", help="output directory (default %(default)s)")
     p.set_defaults(handler=cmd_train)
 
@@ -340,6 +351,7 @@ def build_parser():
     p.add_argument("--seeds", type=int, default=64, help="seeds 0..N-1 (default %(default)s)")
     p.add_argument("--lr", type=_float_list, default=[0.01], help="learning rates, e.g. 0.003,0.01")
     p.add_argument("--discount", type=_float_list, default=[0.95], help="discounts, e.g. 0.9,0.95")
+    p.add_argument("--entropy-coef", type=_float_list, default=[0.0], help="entropy bonus weights, e.g. 0,0.01")
     p.add_argument("--out", default="runs/sweep", help="output directory (default %(default)s)")
     p.add_argument("--memory-budget", type=_bytes, help="memory per device for training, e.g. 2G; "
                    "the runs train in chunks that fit it (default: all at once)")

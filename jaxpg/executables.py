@@ -3,7 +3,7 @@ neither traces nor compiles them.
 
 XLA compiles without holding Python's lock. `Stored.prepare` traces and lowers a program in the
 calling thread and compiles it on another, so that the caller can go on to trace the next program
-(`reinforce.prepare`: `init` is traced and compiled while `iterate`, the longer, compiles).
+(`schedule.prepare`: `init` is traced and compiled while `iterate`, the longer, compiles).
 
 JAX's persistent compilation cache saves XLA's compiling, but a process that looks a program up
 there still traces and lowers the Python function to find its key: about a second for the

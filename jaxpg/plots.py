@@ -34,7 +34,7 @@ def learning_curve(metrics, path, title=None):
     """Plots one run's mean return per iteration, with the band from its min to max return.
 
     Args:
-      metrics: `reinforce.Metrics` of one run, `[I]` leaves.
+      metrics: `iteration.Metrics` of one run, `[I]` leaves.
       path: the image file to write.
       title: optional figure title.
 

@@ -16,7 +16,8 @@ from flax import serialization
 
 import jaxpg
 from jaxpg import cartpole, checkpoint, policies, results
-from jaxpg.reinforce import Metrics, TrainConfig
+from jaxpg.iteration import Metrics
+from jaxpg.train_config import TrainConfig
 
 CONFIG = TrainConfig(
     iterations=3,

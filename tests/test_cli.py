@@ -71,6 +71,9 @@ def test_sweep_writes_summary_and_picture(tmp_path):
     (["train", "--activation", "nope"], "activation"),
     (["train", "--env", "CartPole-v7"], "env"),
     (["train", "--hidden", "x"], "hidden"),
+    (["train", "--loss", "ppo"], "--loss"),
+    (["train", "--entropy-coef", "-1"], "entropy_coef"),
+    (["sweep", "--entropy-coef", "0,inf"], "entropy_coef"),
     (["sweep", "--seeds", "0"], "seeds"),
     (["sweep", "--discount", "0.9,2"], "discount"),
     (["sweep", "--memory-budget", "2X"], "--memory-budget"),
@@ -222,3 +225,22 @@ def test_render_writes_a_file_of_a_long_name(tmp_path):
     path = tmp_path / ("c" * 236 + ".gif")  # 240 bytes: the temporary name must be cut to fit
     assert cli.main(["render", "--out", str(path), "--max-steps", "10"]) == 0
     assert [p.name for p in tmp_path.iterdir()] == [path.name]
+
+
+def test_train_and_sweep_take_a_loss_an_entropy_bonus_and_a_linear_policy(tmp_path):
+    out = tmp_path / "run"
+    args = ["--loss", "baseline", "--entropy-coef", "0.01", "--hidden", ""]
+    assert cli.main(["train", *SMALL, *args, "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+    assert len(metrics["value_loss"]) == len(metrics["entropy"]) == 3
+    assert (out / "metrics.csv").read_text().splitlines()[0].endswith("entropy,value_loss")
+    loaded = checkpoint.load(out)
+    assert (loaded.config.loss, loaded.config.hidden) == ("baseline", ())
+    sweep_out = tmp_path / "sweep"
+    assert cli.main(["sweep", *SMALL, "--seeds", "2", "--loss", "reward-to-go",
+                     "--entropy-coef", "0,0.01", "--out", str(sweep_out)]) == 0
+    with np.load(sweep_out / "metrics.npz") as saved:
+        assert saved["entropy"].shape == (2, 2, 3)
+        np.testing.assert_array_equal(saved["entropy_coef"], [0, 0.01])
+    assert (sweep_out / "runs.csv").read_text().splitlines()[0].startswith(
+        "learning_rate,discount,entropy_coef,seed")

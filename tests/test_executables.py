@@ -14,8 +14,8 @@ import pytest
 from conftest import xla_compiles
 from jax.experimental.compilation_cache import compilation_cache
 
-from jaxpg import executables, policies, reinforce
-from jaxpg.reinforce import TrainConfig
+from jaxpg import executables, iteration, policies, programs, reinforce, schedule
+from jaxpg.train_config import TrainConfig
 
 CONFIG = TrainConfig(iterations=3, episodes=3, max_steps=20)
 
@@ -28,13 +28,13 @@ def _inputs(seeds):
 
 def _train(seeds, place=lambda leaf: leaf):
     part = jax.tree.map(place, _inputs(seeds))
-    (result,) = reinforce.run(reinforce.compiled_program(CONFIG), CONFIG.iterations, [part])
+    (result,) = schedule.run(programs.compiled_program(CONFIG), CONFIG.iterations, [part])
     return result
 
 
 def _new_process():
     """Forgets every program this process holds, as a new process would start."""
-    reinforce._program.cache_clear()
+    programs._program.cache_clear()
 
 
 @pytest.fixture
@@ -52,12 +52,12 @@ def _not_again(*args, **kwargs):
 
 def test_a_kept_program_is_loaded_and_trains_exactly_the_same(store, monkeypatch):
     expected = _train([0, 1])  # store is on: compiled and written
-    # Two runs train alone (`reinforce.ALONE_PER_CORE`).
+    # Two runs train alone (`schedule.ALONE_PER_CORE`).
     assert sorted(p.name.split("-")[0] for p in store.iterdir()) == ["init", "iterate_alone"]
     _new_process()
     monkeypatch.setattr(jax.stages.Lowered, "compile", _not_again)
     monkeypatch.setattr(policies, "init_network", _not_again)  # traced by init
-    monkeypatch.setattr(reinforce, "iterate", _not_again)  # traced by iterate
+    monkeypatch.setattr(programs, "iterate", _not_again)  # traced by iterate
     chex.assert_trees_all_equal(_train([0, 1]), expected)
     executables.disable()
     _new_process()
@@ -67,7 +67,7 @@ def test_a_kept_program_is_loaded_and_trains_exactly_the_same(store, monkeypatch
 
 def test_other_shapes_and_settings_get_programs_of_their_own(store):
     _train([0])
-    _train(range(reinforce.ALONE_PER_CORE * reinforce.usable_cores() + 1))  # in blocks
+    _train(range(schedule.ALONE_PER_CORE * schedule.usable_cores() + 1))  # in blocks
     assert len(list(store.iterdir())) == 4  # init and iterate, for a run alone and for a block
 
 
@@ -126,7 +126,7 @@ def test_each_program_is_compiled_once_ahead_of_its_calls(kept, placed, tmp_path
 
 def test_a_call_waits_for_the_program_being_compiled_ahead():
     _new_process()
-    program = reinforce.compiled_program(CONFIG)
+    program = programs.compiled_program(CONFIG)
     keys, hyperparams = _inputs([8])
     with xla_compiles() as compiled:
         future = program.init.prepare(keys, hyperparams)
@@ -146,7 +146,7 @@ def test_a_failed_compile_is_tried_again_at_the_next_call(store, monkeypatch):
         return compile_now(lowered, *args, **kwargs)
 
     monkeypatch.setattr(jax.stages.Lowered, "compile", fail_once)
-    program, args = reinforce.compiled_program(CONFIG), _inputs([9])
+    program, args = programs.compiled_program(CONFIG), _inputs([9])
     program.init.prepare(*args)
     with pytest.raises(RuntimeError, match="once"):
         program.init(*args)
@@ -156,11 +156,11 @@ def test_a_failed_compile_is_tried_again_at_the_next_call(store, monkeypatch):
 
 def test_python_numbers_among_the_arguments_call_the_jitted_function():
     _new_process()
-    program, args = reinforce.compiled_program(CONFIG), _inputs([10])
-    reinforce.run(program, CONFIG.iterations, [args])  # its programs are prepared
+    program, args = programs.compiled_program(CONFIG), _inputs([10])
+    schedule.run(program, CONFIG.iterations, [args])  # its programs are prepared
     state = program.init(*args)
     _, metrics = program.iterate(state, args[1], 2)
-    assert np.asarray(metrics).shape[:2] == (reinforce.ITERATIONS_PER_CALL, len(reinforce.Metrics._fields))
+    assert np.asarray(metrics).shape[:2] == (programs.ITERATIONS_PER_CALL, len(iteration.Metrics._fields))
 
 
 class _Planted:

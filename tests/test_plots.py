@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from jaxpg import plots
-from jaxpg.reinforce import Metrics
+from jaxpg.iteration import Metrics
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
