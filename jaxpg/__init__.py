@@ -8,6 +8,7 @@ __version__ = "0.1.0"
 
 from jaxpg import cartpole, gym
 from jaxpg.evaluate import evaluate
+from jaxpg.executables import enable as keep_programs
 from jaxpg.policies import basic_policy
 from jaxpg.iteration import TrainResult
 from jaxpg.reinforce import train
@@ -23,6 +24,7 @@ __all__ = [
     "discount_rewards",
     "discount_and_normalize_rewards",
     "evaluate",
+    "keep_programs",
     "sweep",
     "TrainConfig",
     "TrainResult",

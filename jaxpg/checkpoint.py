@@ -99,6 +99,8 @@ def config_to_dict(config):
         value = getattr(config, field.name)
         if field.name == "hidden":
             value = [int(size) for size in value]
+        elif field.name == "randomize":
+            value = {name: list(bounds) for name, bounds in value}
         elif field.name in _OBJECTS:
             value = _describe(value)
         elif isinstance(value, cartpole.CartPoleParams):

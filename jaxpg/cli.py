@@ -5,7 +5,7 @@ one line on stderr, never a traceback.
 """
 
 import argparse
-import os
+import dataclasses
 import pathlib
 import re
 import sys
@@ -60,6 +60,34 @@ def _bytes(text):
     return size
 
 
+def _physics(text):
+    """`0.5,1,2` (values: a sweep's axis) or `0.25:2.0` (a range to draw from per episode)."""
+    low, colon, high = text.partition(":")
+    if colon:
+        try:
+            return float(low), float(high)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a range LOW:HIGH, got {text!r}")
+    return _float_list(text)
+
+
+def _add_physics_args(parser):
+    from jaxpg.train_config import PHYSICS
+
+    for name in PHYSICS:
+        parser.add_argument(f"--{name.replace('_', '-')}", type=_physics, metavar="V[,V...]|LOW:HIGH",
+                            help=f"{name}: values, or a range drawn per episode")
+
+
+def _physics_settings(args):
+    """({field: values} of the physics flags, {field: (low, high)} of their ranges)."""
+    from jaxpg.train_config import PHYSICS
+
+    given = {name: getattr(args, name) for name in PHYSICS if getattr(args, name) is not None}
+    return ({name: v for name, v in given.items() if isinstance(v, list)},
+            {name: v for name, v in given.items() if isinstance(v, tuple)})
+
+
 def _add_training_args(parser):
     from jaxpg.losses import BUILT_IN
     from jaxpg.train_config import TrainConfig
@@ -76,6 +104,7 @@ def _add_training_args(parser):
     parser.add_argument("--solved-return", type=float, default=d.solved_return, help="mean return that counts as solved (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     parser.add_argument("--no-cache", action="store_true", help="compile afresh; keep no compiled programs")
+    _add_physics_args(parser)
 
 
 def _config(args, **hyperparams):
@@ -90,6 +119,7 @@ def _config(args, **hyperparams):
         optimizer=args.optimizer,
         loss=args.loss,
         env=args.env,
+        randomize=_physics_settings(args)[1],
         solved_return=args.solved_return,
         **hyperparams,
     )
@@ -104,10 +134,10 @@ def _enable_compilation_cache(disabled, whole_programs=False):
     """
     if disabled:
         return
-    cache = _cache_home() / "jaxpg"
-    if whole_programs:
-        from jaxpg import executables
+    from jaxpg import executables
 
+    cache = executables.cache_home() / "jaxpg"
+    if whole_programs:
         executables.enable(cache / "programs")
         return
     import jax
@@ -121,13 +151,6 @@ def _enable_compilation_cache(disabled, whole_programs=False):
     jax.config.update("jax_compilation_cache_dir", str(cache / "xla"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-
-
-def _cache_home():
-    """$XDG_CACHE_HOME, or ~/.cache where it is unset, empty or relative (the XDG base directory
-    specification says to ignore such values)."""
-    value = os.environ.get("XDG_CACHE_HOME", "")
-    return pathlib.Path(value) if os.path.isabs(value) else pathlib.Path.home() / ".cache"
 
 
 def _load_policy(spec):
@@ -154,6 +177,15 @@ def cmd_train(args):
 
     config = _config(args, learning_rate=args.lr, discount=args.discount,
                      entropy_coef=args.entropy_coef)
+    values = _physics_settings(args)[0]
+    for name, given in values.items():
+        if len(given) != 1:
+            raise ValueError(f"{name}: train takes one value (a sweep takes several), got {given}")
+    if values:
+        from jaxpg import cartpole
+
+        config = dataclasses.replace(config, env=cartpole.make_params(
+            args.env, **{name: given[0] for name, given in values.items()}))
     check_int("seed", args.seed, 0)
     out = results.claim(args.out)  # held until the results are in place: a second run is refused
     _enable_compilation_cache(args.no_cache, whole_programs=True)
@@ -210,7 +242,8 @@ def cmd_sweep(args):
         raise ValueError(f"seeds: must be a positive integer, got {args.seeds}")
     config = _config(args, learning_rate=args.lr[0], discount=args.discount[0],
                      entropy_coef=args.entropy_coef[0])
-    grid = {"learning_rate": args.lr, "discount": args.discount, "entropy_coef": args.entropy_coef}
+    grid = {"learning_rate": args.lr, "discount": args.discount, "entropy_coef": args.entropy_coef,
+            **_physics_settings(args)[0]}
     expand_grid(config, grid)  # validates before compiling
     out = (results.claim if writes_results else results.check_out_dir)(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
@@ -224,15 +257,11 @@ def cmd_sweep(args):
     labels = [report.setting_label(g) for g in swept.grid]
     with results.staged(out) as stage:
         np.savez_compressed(stage / "metrics.npz", seeds=swept.seeds,
-                            learning_rate=[g["learning_rate"] for g in swept.grid],
-                            discount=[g["discount"] for g in swept.grid],
-                            entropy_coef=[g["entropy_coef"] for g in swept.grid],
+                            **{name: [g[name] for g in swept.grid] for name in swept.grid[0]},
                             **swept.metrics.columns())
         num_settings, num_seeds = s.final_return.shape
         results.write_csv(stage / "runs.csv", {
-            "learning_rate": np.repeat([g["learning_rate"] for g in swept.grid], num_seeds),
-            "discount": np.repeat([g["discount"] for g in swept.grid], num_seeds),
-            "entropy_coef": np.repeat([g["entropy_coef"] for g in swept.grid], num_seeds),
+            **{name: np.repeat([g[name] for g in swept.grid], num_seeds) for name in swept.grid[0]},
             "seed": np.tile(swept.seeds, num_settings),
             "last_10_mean_return": s.final_return.ravel(),
             "first_solved_iteration": s.first_solved.ravel(),

@@ -145,6 +145,12 @@ def iterate(config, train_state, hyperparams):
     params = _without_run_axis(train_state.params) if alone else train_state.params
     env_params = config.env_params if hyperparams.env is None else (
         _without_run_axis(hyperparams.env) if alone else hyperparams.env)
+    if config.randomize:
+        key_rollout, key_physics = rng.split(key_rollout)
+        episodes = -(-config.episodes // rollout.LANES) * rollout.LANES if alone else (
+            config.episodes)
+        env_params = _randomized(config.randomize, env_params, key_physics[0] if alone
+                                 else key_physics, episodes)
 
     # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
     # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
@@ -171,6 +177,15 @@ def iterate(config, train_state, hyperparams):
         extra=extra,
     )
     return TrainState(new_params, opt_state, key), metrics
+
+
+def _randomized(ranges, env_params, key, episodes):
+    """`env_params` with each field of `ranges` drawn per episode, uniformly in [low, high):
+    leaves `[episodes]`, or `[episodes, R]` for R keys `[R, 2]`."""
+    keys = rng.split(key, len(ranges))
+    return env_params.replace(**{
+        name: rng.uniform(field_key, (episodes,), low, high)
+        for (name, (low, high)), field_key in zip(ranges, keys)})
 
 
 def _without_run_axis(tree):

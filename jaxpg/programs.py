@@ -108,6 +108,8 @@ class AloneOrTogether(NamedTuple):
 @functools.lru_cache(maxsize=32)
 def _program(config, physics_in_runs):
     extra = check_config(config)
+    # A user's module, loss or optimizer is known by name only, not by its code: not kept.
+    stored = functools.partial(executables.Stored, settings=config, keep=config.built_in)
 
     def jit_iterate(options):
         return jax.jit(functools.partial(_iterate_stacked, config, extra), donate_argnums=0,
@@ -115,11 +117,10 @@ def _program(config, physics_in_runs):
 
     return Program(
         config, physics_in_runs, extra,
-        executables.Stored(
-            jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
-            "init", config),
-        AloneOrTogether(executables.Stored(jit_iterate(None), "iterate_alone", config),
-                        executables.Stored(jit_iterate(TOGETHER_OPTIONS), "iterate", config)),
+        stored(jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
+               "init"),
+        AloneOrTogether(stored(jit_iterate(None), "iterate_alone"),
+                        stored(jit_iterate(TOGETHER_OPTIONS), "iterate")),
     )
 
 

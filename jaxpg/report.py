@@ -18,9 +18,9 @@ import numpy as np
 
 from jaxpg import plots, results, stats
 from jaxpg.sweep import SOLVED_WINDOW
+from jaxpg.train_config import HYPERPARAMETERS
 
 SWEEP_FORMAT = "jaxpg-sweep-1"  # summary.json's "format": the folders this version writes and reads
-GRID_FIELDS = ("learning_rate", "discount")  # what a setting of jaxpg sweep's folders sets
 COMPARISON_FORMAT = "jaxpg-comparison-1"
 COMPARISON_FILE = "comparison.json"
 PLOT_FILES = ("aggregate_intervals.png", "performance_profiles.png", "iqm_curves.png",
@@ -53,8 +53,13 @@ class _Unit(NamedTuple):
 
 
 def setting_label(setting: dict) -> str:
-    """A grid setting in words, e.g. "lr=0.01, discount=0.95"."""
-    return f"lr={setting['learning_rate']:g}, discount={setting['discount']:g}"
+    """A grid setting in words, e.g. "lr=0.01, discount=0.95, length=1": the learning rate and
+    discount, the entropy coefficient where it is not 0, and the physics the grid names."""
+    words = [f"lr={setting['learning_rate']:g}", f"discount={setting['discount']:g}"]
+    words += [f"{name}={value:g}" for name, value in setting.items()
+              if name not in ("learning_rate", "discount") and (
+                  name != "entropy_coef" or value)]
+    return ", ".join(words)
 
 
 # --- Reading ------------------------------------------------------------------------------------
@@ -82,11 +87,12 @@ def load_sweep(folder: str | pathlib.Path) -> Sweep:
     if not (path / "metrics.npz").is_file():
         raise ValueError(f"{folder}: no metrics.npz; expected a folder written by jaxpg sweep --out")
     with np.load(path / "metrics.npz") as npz:
-        missing = [name for name in ("mean_return", *GRID_FIELDS) if name not in npz]
-        if missing:
-            raise ValueError(f"{folder}: metrics.npz lacks {', '.join(missing)}; run the sweep again")
+        if "mean_return" not in npz or not isinstance(summary.get("grid"), list):
+            raise ValueError(f"{folder}: metrics.npz lacks mean_return or summary.json its grid; "
+                             f"run the sweep again")
         curves = np.asarray(npz["mean_return"], dtype=np.float64)
-        settings = [{name: float(npz[name][g]) for name in GRID_FIELDS} for g in range(curves.shape[0])]
+        settings = [{name: float(value) for name, value in setting.items()}
+                    for setting in summary["grid"]]
         held_out = np.asarray(npz["eval_returns"], np.float64) if "eval_returns" in npz else None
     if held_out is None:
         window = min(SOLVED_WINDOW, curves.shape[-1])
@@ -121,7 +127,7 @@ def check_comparable(sweeps: Sequence[Sweep]) -> None:
     """
     first = sweeps[0]
     for other in sweeps[1:]:
-        keys = sorted((set(first.config) | set(other.config)) - set(GRID_FIELDS))
+        keys = sorted((set(first.config) | set(other.config)) - set(HYPERPARAMETERS))
         differ = [f"{key} ({first.config.get(key)} against {other.config.get(key)})"
                   for key in keys if first.config.get(key) != other.config.get(key)]
         if differ:

@@ -75,7 +75,7 @@ def expand_grid(config, grid):
     """
     if grid is None or isinstance(grid, dict):
         axes = _axes(dict(grid or {}))
-        names = [*train_config.HYPERPARAMETERS, *(n for n in train_config.PHYSICS if n in axes)]
+        names = [*train_config.HYPERPARAMETERS, *(n for n in axes if n in train_config.PHYSICS)]
         values = [axes.get(name, [getattr(config, name, None)]) for name in names]
         settings = [dict(zip(names, combo)) for combo in itertools.product(*values)]
     elif isinstance(grid, list | tuple) and grid and all(isinstance(s, dict) for s in grid):

@@ -32,6 +32,8 @@ class TrainConfig:
       optimizer: an optax optimizer's name (one taking a `learning_rate`), or a function
         `learning_rate -> optax.GradientTransformation`.
       env: a preset name or a `CartPoleParams`.
+      randomize: domain randomisation, `{field: (low, high)}` of physical fields (`PHYSICS`):
+        every episode draws each named field uniformly in [low, high) inside the program.
       solved_return: the mean return that counts as solved.
       learning_rate, discount, entropy_coef: the hyperparameters (`Hyperparams`); the entropy
         bonus `-entropy_coef * mean entropy` is added to any loss.
@@ -47,6 +49,7 @@ class TrainConfig:
     loss: str | Callable = "reinforce"
     optimizer: str | Callable = "adam"
     env: str | cartpole.CartPoleParams = "CartPole-v1"
+    randomize: Any = ()  # a dict {field: (low, high)}, kept as sorted (field, (low, high)) pairs
     solved_return: float = 195.0
     # Varied by sweeps within one program.
     learning_rate: float = 0.01
@@ -67,6 +70,7 @@ class TrainConfig:
         check_optimizer(self.optimizer)
         check_hyperparams(self.learning_rate, self.discount, self.entropy_coef)
         self.env_params  # validates
+        object.__setattr__(self, "randomize", check_ranges(self.randomize, self.env_params))
 
     @property
     def env_params(self):
@@ -90,6 +94,13 @@ class TrainConfig:
                            None if compiled_physics(env) else env)
 
     @property
+    def built_in(self):
+        """Whether the policy, loss and optimizer are jaxpg's or optax's, named: nothing of the
+        user's code decides the training program."""
+        return self.policy is None and isinstance(self.loss, str) and isinstance(
+            self.optimizer, str)
+
+    @property
     def hand_gradient(self):
         """Whether training takes the fast path: the default network with the book's loss and no
         entropy bonus, whose gradient `jaxpg.hand_gradient` computes."""
@@ -109,6 +120,28 @@ class Hyperparams(NamedTuple):
         """These settings for `runs` runs: numpy `[runs]` leaves, floats as training takes them
         (the optimizer's in float32, the physics in JAX's float, `max_steps` in int32)."""
         return stack([self] * runs)
+
+
+def check_ranges(randomize, env_params):
+    """`randomize` as sorted `(field, (low, high))` pairs of floats; a ValueError naming the field
+    for an unknown one, a range whose low is above its high, or bounds that are not physical."""
+    pairs = randomize.items() if isinstance(randomize, dict) else randomize
+    ranges = []
+    for name, bounds in sorted(pairs):
+        if name not in PHYSICS:
+            raise ValueError(f"randomize: unknown field {name!r}; allowed: {', '.join(PHYSICS)}")
+        try:
+            low, high = (float(bound) for bound in bounds)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name}: expected a range (low, high), got {bounds!r}") from None
+        if not low <= high:
+            raise ValueError(f"{name}: the range's low is above its high: ({low}, {high})")
+        for bound in (low, high):
+            if not np.isfinite(bound):
+                raise ValueError(f"{name}: must be finite, got {bound}")
+            cartpole.check_params(env_params.replace(**{name: bound}))
+        ranges.append((name, (low, high)))
+    return tuple(ranges)
 
 
 def compiled_physics(env_params):

@@ -70,10 +70,18 @@ def xla_compiles():
 
 
 def assert_trained_alike(actual, expected):
-    """Two trees of training results are equal bit for bit, leaf by leaf (named on failure)."""
+    """Two trees of training results are equal bit for bit, but for gradient norms (leaves whose
+    path names `grad_norm`), equal to one unit in the last place: a statistic nothing is computed
+    from, whose multiplications and additions LLVM can fuse into one rounding in one program's
+    layout and not in another's (seen with the runs split over two CPU devices).
+    `benchmarks/check_alone.py` compares every bit of runs alone and side by side.
+    """
     expected_leaves, structure = jax.tree_util.tree_flatten_with_path(expected)
     actual_leaves = jax.tree.leaves(actual)
     assert jax.tree.structure(actual) == structure
     for (path, want), got in zip(expected_leaves, actual_leaves):
         name = jax.tree_util.keystr(path)
-        np.testing.assert_array_equal(np.asarray(got), np.asarray(want), err_msg=name)
+        if "grad_norm" in name:
+            np.testing.assert_array_max_ulp(np.asarray(got), np.asarray(want), maxulp=1)
+        else:
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want), err_msg=name)

@@ -22,7 +22,7 @@ CONFIG = TrainConfig(iterations=3, episodes=3, max_steps=20)
 
 def _inputs(seeds):
     """(keys, hyperparams) of `seeds` under CONFIG's settings."""
-    hyperparams = jax.tree.map(lambda v: np.full(len(seeds), v, np.float32), CONFIG.hyperparams)
+    hyperparams = CONFIG.hyperparams.per_run(len(seeds))
     return reinforce.run_keys(seeds), hyperparams
 
 
@@ -160,7 +160,8 @@ def test_python_numbers_among_the_arguments_call_the_jitted_function():
     schedule.run(program, CONFIG.iterations, [args])  # its programs are prepared
     state = program.init(*args)
     _, metrics = program.iterate(state, args[1], 2)
-    assert np.asarray(metrics).shape[:2] == (programs.ITERATIONS_PER_CALL, len(iteration.Metrics._fields))
+    fields = len(iteration.Metrics._fields) - 1 + len(program.extra)  # `extra` holds the loss's
+    assert np.asarray(metrics).shape[:2] == (programs.ITERATIONS_PER_CALL, fields)
 
 
 class _Planted:

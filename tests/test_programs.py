@@ -1,15 +1,20 @@
-"""Compiled programs: one per config, and calls of several iterations train as calls of one."""
+"""Compiled programs: one per config, calls of several iterations train as calls of one, and
+those of named parts only are kept on disk."""
 
 import dataclasses
 
 import chex
+import flax.linen as nn
 import jax
 import numpy as np
+import optax
 import pytest
 from conftest import xla_compiles
 
 from jaxpg import (
     TrainConfig,
+    executables,
+    keep_programs,
     policies,
     programs,
     reinforce,
@@ -55,3 +60,21 @@ def test_calls_of_several_iterations_train_as_calls_of_one(num_runs, iterations)
         result.policy_params,
         jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0),
                      policies.unflatten(np.asarray(state.params), config.network)))
+
+
+class _Module(nn.Module):
+    @nn.compact
+    def __call__(self, obs):
+        return nn.Dense(1)(obs)
+
+
+def test_programs_of_named_parts_are_kept_and_of_a_users_code_are_not(tmp_path, monkeypatch):
+    monkeypatch.setattr(executables, "_directory", None)
+    keep_programs(tmp_path)
+    config = TrainConfig(iterations=2, episodes=2, max_steps=10, optimizer="sgd")
+    train(config, show_progress=False)
+    kept = set(tmp_path.iterdir())
+    assert kept
+    train(dataclasses.replace(config, policy=_Module()), show_progress=False)
+    train(dataclasses.replace(config, optimizer=lambda lr: optax.sgd(lr)), show_progress=False)
+    assert set(tmp_path.iterdir()) == kept

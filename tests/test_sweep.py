@@ -1,7 +1,9 @@
 """Sweeps: seed i of a sweep is `train(seed=i)` exactly; chunks; summary statistics; bad input."""
 
+import dataclasses
 import importlib
 
+import chex
 import jax
 import numpy as np
 import pytest
@@ -13,7 +15,7 @@ from conftest import (
     xla_compiles,
 )
 
-from jaxpg import TrainConfig, programs, schedule, train
+from jaxpg import TrainConfig, TrainResult, cartpole, programs, schedule, train
 from jaxpg.sweep import chunk_size, device_bytes, fitting_chunk_size, summarize, sweep
 
 
@@ -119,3 +121,70 @@ def test_summary_statistics():
 def test_bad_sweeps_are_rejected(kwargs, match):
     with pytest.raises(ValueError, match=match):
         sweep(TrainConfig(iterations=1), **kwargs)
+
+
+# --- Grids over any field, physics included -----------------------------------------------------
+
+PHYSICS_CONFIG = TrainConfig(iterations=3, episodes=3, max_steps=30)
+
+
+def test_a_physics_grid_compiles_once_and_a_run_trains_as_train_with_that_physics():
+    grid = {"length": [0.5, 1.0], "masspole": [0.1, 0.3]}
+    swept = sweep(PHYSICS_CONFIG, seeds=range(3), grid=grid, show_progress=False)
+    assert [(s["length"], s["masspole"]) for s in swept.grid] == [
+        (0.5, 0.1), (0.5, 0.3), (1.0, 0.1), (1.0, 0.3)]
+    with xla_compiles() as compiled:  # new values: the same program
+        sweep(PHYSICS_CONFIG, seeds=range(3), grid={"length": [0.7, 2.0], "masspole": [0.2, 0.4]},
+              show_progress=False)
+    assert not compiled
+    alone = train(dataclasses.replace(PHYSICS_CONFIG, env=cartpole.make_params(
+        "CartPole-v1", length=1.0, masspole=0.3)), seed=2, show_progress=False)
+    assert_trained_alike(alone, jax.tree.map(lambda leaf: leaf[3, 2], TrainResult(
+        swept.policy_params, swept.metrics)))
+
+
+def test_a_grid_of_the_default_physics_is_the_sweep_without_one():
+    plain = sweep(PHYSICS_CONFIG, seeds=range(3), show_progress=False)
+    default = sweep(PHYSICS_CONFIG, seeds=range(3), grid={"length": [0.5], "gravity": [9.8]},
+                    show_progress=False)
+    chex.assert_trees_all_equal((plain.policy_params, plain.metrics),
+                                (default.policy_params, default.metrics))
+
+
+def test_a_list_of_settings_trains_each():
+    grid = [{"length": 0.5}, {"length": 1.0, "learning_rate": 0.02}]
+    swept = sweep(PHYSICS_CONFIG, seeds=range(2), grid=grid, show_progress=False)
+    assert [(s["length"], s["learning_rate"]) for s in swept.grid] == [(0.5, 0.01), (1.0, 0.02)]
+    assert swept.summary.final_return.shape == (2, 2)
+
+
+@pytest.mark.parametrize("grid, match", [
+    ({"frob": [1.0]}, "grid: unknown field"),
+    ({"length": [0.0]}, "length: must be positive"),
+    ({"masscart": [-1.0]}, "masscart: must be positive"),
+    ({"tau": [float("nan")]}, "tau: must be finite"),
+    ({"gravity": [float("inf")]}, "gravity: must be finite"),
+    ({"length": []}, "length: the grid needs at least one value"),
+    ({"length": [1.0, 1.0]}, "length: the grid repeats a value"),
+    ([{"length": 1.0}, {"length": 1.0}], "grid: the list repeats a setting"),
+    ([], "grid: expected"),
+])
+def test_bad_grids_are_named_before_compiling(grid, match):
+    with xla_compiles() as compiled, pytest.raises(ValueError, match=match):
+        sweep(PHYSICS_CONFIG, seeds=range(2), grid=grid, show_progress=False)
+    assert not compiled
+
+
+def test_domain_randomisation_trains_and_bad_ranges_are_named():
+    config = dataclasses.replace(PHYSICS_CONFIG, randomize={"length": (0.25, 2.0)})
+    swept = sweep(config, seeds=range(3), show_progress=False)
+    alone = train(config, seed=1, show_progress=False)
+    assert_trained_alike(alone, jax.tree.map(lambda leaf: leaf[0, 1], TrainResult(
+        swept.policy_params, swept.metrics)))
+    plain = train(PHYSICS_CONFIG, seed=1, show_progress=False)
+    assert not np.array_equal(plain.metrics.mean_return, alone.metrics.mean_return)
+    for ranges, match in [({"length": (2.0, 1.0)}, "length: the range's low is above"),
+                          ({"mass": (1.0, 2.0)}, "randomize: unknown field"),
+                          ({"masspole": (0.0, 1.0)}, "masspole: must be positive")]:
+        with pytest.raises(ValueError, match=match):
+            TrainConfig(randomize=ranges)
