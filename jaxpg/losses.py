@@ -78,7 +78,7 @@ def reward_to_go(params, apply_fn, batch, hyper):
 class ValueNetwork(nn.Module):
     """Dense(hidden) -> elu -> ... -> Dense(1): a state's value `[...]` from obs `[..., 4]`."""
 
-    hidden: tuple[int, ...] = (5,)
+    hidden: tuple[int, ...] = (8,)
 
     @nn.compact
     def __call__(self, obs):

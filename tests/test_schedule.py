@@ -69,7 +69,7 @@ def test_blocks_padded_with_copies_train_their_runs_as_alone(cores, monkeypatch)
     blocks, size = schedule.cpu_blocks(5)
     assert size > max(stop - start for start, stop in blocks)  # copies in every block
     hyperparams = train_config.Hyperparams(np.linspace(0.005, 0.02, 5, dtype=np.float32),
-                                           np.full(5, 0.95, np.float32), np.zeros(5, np.float32))
+                                           np.full(5, 0.95, np.float32), np.zeros(5, np.float32), None)
     part = (reinforce.run_keys(np.arange(5)), hyperparams)
     program = programs.compiled_program(config)
     (together,) = schedule.run(program, config.iterations, [part])
