@@ -1,10 +1,12 @@
 """Saving and loading trained policies with the configuration that trained them.
 
 A checkpoint is one file, by convention `policy.msgpack` (the name `jaxpg train --out DIR` writes
-and `load(DIR)` reads), holding a msgpack map written by `flax.serialization.msgpack_serialize`:
+and `load(DIR)` reads), or `policies.msgpack` for every run of a sweep (`jaxpg sweep --out DIR`),
+holding a msgpack map written by `flax.serialization.msgpack_serialize`:
 
     format          "jaxpg-checkpoint": marks the file as a jaxpg checkpoint
-    format_version  1 (an integer): bumped when the layout changes; a reader refuses newer versions
+    format_version  an integer, bumped when the layout changes; a reader refuses newer versions:
+                    1 for one run, 2 for a sweep's runs (version 1 has no `runs`)
     jaxpg_version   the `jaxpg.__version__` that wrote the file, e.g. "0.1.0"
     config          the `TrainConfig` as a map of its fields; `hidden` is a list, `env` is
                     either a preset name ("CartPole-v1") or a map of `CartPoleParams` fields,
@@ -17,6 +19,9 @@ and `load(DIR)` reads), holding a msgpack map written by `flax.serialization.msg
                     float32 or float64 and finite
     metrics         nil, or a map of `Metrics` fields to float32 or float64 arrays (`[I]`
                     per-iteration statistics), `extra` a map of the loss's own metrics
+    runs            a sweep's only: {"grid": its G settings (maps of field to number), "seeds":
+                    its S seeds}; every array of `policy_params` and `metrics` then holds every
+                    run's, `[G, S, ...]`, run (g, s) being seed s under setting g
 
 Any msgpack reader can open the file; flax's `msgpack_restore` turns the arrays back into numpy.
 
@@ -24,6 +29,7 @@ It is written with `results.atomic_write`: a crash mid-write leaves the previous
 """
 
 import dataclasses
+import functools
 import pathlib
 from typing import NamedTuple
 
@@ -35,8 +41,9 @@ from flax import serialization
 from jaxpg import cartpole, iteration, policies, results, train_config
 
 FORMAT = "jaxpg-checkpoint"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # the newest this reads; one run's file is still written as version 1
 FILENAME = "policy.msgpack"
+SWEEP_FILENAME = "policies.msgpack"
 
 
 class Checkpoint(NamedTuple):
@@ -46,20 +53,24 @@ class Checkpoint(NamedTuple):
     config: train_config.TrainConfig
     version: str  # the jaxpg version that wrote it
     metrics: iteration.Metrics | None
+    grid: list | None = None  # a sweep's G settings; its arrays are then `[G, S, ...]`
+    seeds: np.ndarray | None = None  # a sweep's S seeds
 
 
 # --- Saving --------------------------------------------------------------------------------------
 
 
-def save(path, policy_params, config, metrics=None):
+def save(path, policy_params, config, metrics=None, runs=None):
     """Saves a policy with its `TrainConfig` (and optionally its metrics) as one file, atomically.
 
     Args:
-      path: the file to write, or an existing directory to write `policy.msgpack` in. Missing
-        parent directories of a file are created.
+      path: the file to write, or an existing directory to write `policy.msgpack` in (for a
+        sweep, `policies.msgpack`). Missing parent directories of a file are created.
       policy_params: the policy network's parameters (`TrainResult.policy_params` of one run).
       config: the `TrainConfig` that describes the network.
       metrics: optional `Metrics` of the run.
+      runs: for a sweep's runs (`save_sweep`), `{"grid": G settings, "seeds": S seeds}`;
+        `policy_params` and `metrics` then hold every run's, `[G, S, ...]`.
 
     Returns:
       The `pathlib.Path` written.
@@ -68,21 +79,39 @@ def save(path, policy_params, config, metrics=None):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     if metrics is not None and not isinstance(metrics, iteration.Metrics):
         raise ValueError(f"metrics: expected a Metrics or None, got {type(metrics).__name__}")
-    _check_params_match(policy_params, config, "policy_params")
+    _check_params_match(policy_params, config, "policy_params", _grid_shape(runs))
     path = pathlib.Path(path)
     if path.is_dir():
-        path = path / FILENAME
+        path = path / (FILENAME if runs is None else SWEEP_FILENAME)
     payload = {
         "format": FORMAT,
-        "format_version": FORMAT_VERSION,
+        "format_version": 1 if runs is None else FORMAT_VERSION,
         "jaxpg_version": _jaxpg_version(),
         "config": config_to_dict(config),
         "policy_params": jax.tree.map(np.asarray, serialization.to_state_dict(policy_params)),
         "metrics": None if metrics is None else jax.tree.map(np.asarray, metrics._asdict()),
+        **({} if runs is None else {"runs": runs}),
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     results.atomic_write(path, serialization.msgpack_serialize(payload))
     return path
+
+
+def save_sweep(path, swept, config):
+    """Saves every run of a sweep (`SweepResult`) in one file, `[G, S, ...]` (`save`'s `runs`).
+
+    Returns:
+      The `pathlib.Path` written: `path`, or `path/policies.msgpack` for a directory.
+    """
+    runs = {"grid": [{name: float(value) for name, value in setting.items()}
+                     for setting in swept.grid],
+            "seeds": [int(seed) for seed in swept.seeds]}
+    return save(path, swept.policy_params, config, swept.metrics, runs)
+
+
+def _grid_shape(runs):
+    """The leading axes `(G, S)` of a sweep's arrays (`save`'s `runs`), `()` for one run."""
+    return () if runs is None else (len(runs["grid"]), len(runs["seeds"]))
 
 
 def _jaxpg_version():
@@ -172,10 +201,11 @@ def config_from_dict(fields, objects=None):
     return train_config.TrainConfig(**fields)
 
 
-def _check_params_match(policy_params, config, where):
-    """Raises a ValueError unless `policy_params` has the shapes of `config`'s policy's own."""
+def _check_params_match(policy_params, config, where, lead=()):
+    """Raises a ValueError unless `policy_params` has the shapes of `config`'s policy's own, after
+    the leading axes `lead` (a sweep's `(G, S)`)."""
     shapes = jax.tree.map(np.shape, serialization.to_state_dict(policy_params))
-    want = jax.tree.map(lambda leaf: leaf.shape, jax.eval_shape(
+    want = jax.tree.map(lambda leaf: (*lead, *leaf.shape), jax.eval_shape(
         lambda key: policies.init_network(key, config.network),
         jax.ShapeDtypeStruct((2,), np.uint32)))
     if shapes != want:
@@ -189,10 +219,12 @@ def _check_params_match(policy_params, config, where):
 
 
 def resolve(path):
-    """The checkpoint file that `path` names: the path itself, or `DIR/policy.msgpack`."""
+    """The checkpoint file that `path` names: the path itself, or `DIR/policy.msgpack`, or where
+    that is missing, a sweep's `DIR/policies.msgpack`."""
     path = pathlib.Path(path)
     if path.is_dir():
-        path = path / FILENAME
+        path = path / (SWEEP_FILENAME if (path / SWEEP_FILENAME).is_file()
+                       and not (path / FILENAME).exists() else FILENAME)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such checkpoint file")
     return path
@@ -202,13 +234,16 @@ def load(path, policy=None, loss=None, optimizer=None):
     """Loads a checkpoint written by `save`.
 
     Args:
-      path: a checkpoint file, or a directory holding `policy.msgpack`.
+      path: a checkpoint file, or a directory holding `policy.msgpack` or a sweep's
+        `policies.msgpack`.
       policy, loss, optimizer: the objects that trained it where they were a user's own (a flax
         module, functions), which the checkpoint names but cannot hold: the same module class
         with the same fields (its parameters are checked against it), and the functions.
 
     Returns:
-      `Checkpoint(policy_params, config, version, metrics)`.
+      `Checkpoint(policy_params, config, version, metrics, grid, seeds)`: for a sweep's file, the
+      arrays `[G, S, ...]` and its grid and seeds (`select_run` takes one run); else grid and
+      seeds are None.
 
     Raises:
       FileNotFoundError: there is no such file.
@@ -239,9 +274,12 @@ def load(path, policy=None, loss=None, optimizer=None):
     try:
         version = str(payload["jaxpg_version"])
         config = config_from_dict(payload["config"], objects)
+        runs = payload.get("runs")
+        grid = None if runs is None else [dict(setting) for setting in runs["grid"]]
+        seeds = None if runs is None else np.asarray(runs["seeds"], np.int64)
         _check_floats(payload["policy_params"], "policy_params", finite=True)
         policy_params = jax.tree.map(jnp.asarray, payload["policy_params"])
-        _check_params_match(policy_params, config, "policy_params")
+        _check_params_match(policy_params, config, "policy_params", _grid_shape(runs))
         metrics = payload.get("metrics")
         if metrics is not None:
             _check_floats(metrics, "metrics", finite=False)  # a diverged run's are not finite
@@ -249,7 +287,33 @@ def load(path, policy=None, loss=None, optimizer=None):
                                            for k, v in metrics.items()})
     except (AttributeError, KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: damaged jaxpg checkpoint ({type(e).__name__}: {e})") from None
-    return Checkpoint(policy_params, config, version, metrics)
+    return Checkpoint(policy_params, config, version, metrics, grid, seeds)
+
+
+def select_run(loaded, g, s):
+    """Run (g, s) of a sweep's checkpoint: seed `loaded.seeds[s]` under setting `loaded.grid[g]`.
+
+    Returns:
+      A `Checkpoint` of that one run, its config with the run's own hyperparameters and physics.
+
+    Raises:
+      ValueError: naming `run`, for a checkpoint of one run or a run outside the sweep.
+    """
+    if loaded.grid is None:
+        raise ValueError("run: the checkpoint holds one run, not a sweep's")
+    grid_shape = (len(loaded.grid), len(loaded.seeds))
+    if not all(0 <= i < n for i, n in zip((g, s), grid_shape)):
+        raise ValueError(f"run: expected g in [0, {grid_shape[0]}) and s in "
+                         f"[0, {grid_shape[1]}), got {g},{s}")
+    setting = loaded.grid[g]
+    physics = {name: setting[name] for name in train_config.PHYSICS if name in setting}
+    config = dataclasses.replace(
+        loaded.config,
+        **{name: setting[name] for name in train_config.HYPERPARAMETERS if name in setting},
+        env=loaded.config.env_params.replace(**physics) if physics else loaded.config.env)
+    run = functools.partial(jax.tree.map, lambda leaf: leaf[g, s])
+    return Checkpoint(run(loaded.policy_params), config, loaded.version,
+                      None if loaded.metrics is None else run(loaded.metrics))
 
 
 _FLOAT_DTYPES = (np.float32, np.float64)

@@ -71,12 +71,16 @@ def _physics(text):
     return _float_list(text)
 
 
-def _add_physics_args(parser):
+def _add_physics_args(parser, ranges=True):
     from jaxpg.train_config import PHYSICS
 
     for name in PHYSICS:
-        parser.add_argument(f"--{name.replace('_', '-')}", type=_physics, metavar="V[,V...]|LOW:HIGH",
-                            help=f"{name}: values, or a range drawn per episode")
+        if ranges:
+            parser.add_argument(f"--{name.replace('_', '-')}", type=_physics, metavar="V[,V...]|LOW:HIGH",
+                                help=f"{name}: values, or a range drawn per episode")
+        else:
+            parser.add_argument(f"--{name.replace('_', '-')}", type=_float_list, metavar="V[,V...]",
+                                help=f"{name}: values; every combination of the flags' values is a setting")
 
 
 def _physics_settings(args):
@@ -153,19 +157,63 @@ def _enable_compilation_cache(disabled, whole_programs=False):
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
-def _load_policy(spec):
-    """`basic`, or a directory or file written by `jaxpg train`: (policy, description)."""
+def _run_index(text):
+    """`g,s`: run (g, s) of a sweep, seed s under grid setting g (both counted from 0)."""
+    try:
+        g, s = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected g,s (two integers), got {text!r}")
+    return g, s
+
+
+def _load_policies(spec, run=None):
+    """`basic`, or a directory or file written by `jaxpg train` or `jaxpg sweep` (with `run`, one
+    of its runs): (the basic policy, or parameters stacked `[G, S, ...]`; their module or None;
+    a description)."""
+    import jax
+
     from jaxpg import checkpoint, policies
 
+    expected = "expected 'basic' or a checkpoint written by jaxpg train or sweep"
     if not spec:
-        raise ValueError("policy: expected 'basic' or a checkpoint written by jaxpg train, got an empty path")
+        raise ValueError(f"policy: {expected}, got an empty path")
     if spec == "basic":
-        return policies.basic_policy, "the basic angle policy"
-    path = pathlib.Path(spec)
-    if not path.exists():
-        raise ValueError(f"policy: expected 'basic' or a checkpoint written by jaxpg train, {spec} does not exist")
-    loaded = checkpoint.load(path)
-    return policies.network_policy(loaded.config.network, loaded.policy_params), f"the policy in {spec}"
+        if run is not None:
+            raise ValueError("run: only for a sweep's policies, not for basic")
+        return policies.basic_policy, None, "the basic angle policy"
+    if not pathlib.Path(spec).exists():
+        raise ValueError(f"policy: {expected}, {spec} does not exist")
+    loaded = checkpoint.load(spec)
+    if loaded.grid is not None and run is None:
+        return (loaded.policy_params, loaded.config.network,
+                f"the {len(loaded.grid)} x {len(loaded.seeds)} policies in {spec}")
+    if run is not None:
+        loaded = checkpoint.select_run(loaded, *run)
+        spec = f"run {run[0]},{run[1]} of {spec}"
+    return (jax.tree.map(lambda leaf: leaf[None, None], loaded.policy_params),
+            loaded.config.network, f"the policy in {spec}")
+
+
+def _one_policy(policies, network):
+    """The policy of `_load_policies`'s parameters of one run; None where they hold several."""
+    import jax
+
+    from jaxpg.policies import network_policy
+
+    if network is None:
+        return policies
+    if jax.tree.leaves(policies)[0].shape[:2] != (1, 1):
+        return None
+    return network_policy(network, jax.tree.map(lambda leaf: leaf[0, 0], policies))
+
+
+def _load_policy(spec, run=None):
+    """One policy of `_load_policies`: (policy, description)."""
+    policies, network, description = _load_policies(spec, run)
+    policy = _one_policy(policies, network)
+    if policy is None:
+        raise ValueError(f"run: {spec} holds a sweep's runs; choose one with --run g,s")
+    return policy, description
 
 
 # --- Commands --------------------------------------------------------------------------------
@@ -275,9 +323,10 @@ def cmd_sweep(args):
         })
         plots.sweep_curves(s.median, s.q25, s.q75, s.solved_by, labels, config.solved_return,
                            stage / "sweep.png")
+        checkpoint.save_sweep(stage / checkpoint.SWEEP_FILENAME, swept, config)
     for label, solved, final in zip(labels, s.fraction_solved, np.median(s.final_return, axis=1)):
         print(f"{label}: median last-10 mean return {final:.1f}, solved {solved:.0%} of {args.seeds} seeds")
-    print(f"{s.final_return.size} runs in {seconds:.1f} s; wrote {out}/: metrics.npz, runs.csv, summary.json, sweep.png")
+    print(f"{s.final_return.size} runs in {seconds:.1f} s; wrote {out}/: metrics.npz, runs.csv, summary.json, sweep.png, {checkpoint.SWEEP_FILENAME}")
     if args.seeds < 2:
         print("no comparison report: its confidence intervals need at least 2 seeds")
         return
@@ -295,20 +344,85 @@ def cmd_compare(args):
 
 
 def cmd_evaluate(args):
-    from jaxpg.evaluate import evaluate
+    from jaxpg import cartpole, results
+    from jaxpg.evaluate import evaluate, physics_label, physics_settings, robustness
 
-    policy, description = _load_policy(args.policy)
-    result = evaluate(policy, episodes=args.episodes, max_steps=args.max_steps, env=args.env,
-                      seed=args.seed, backend=args.backend)
-    print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps "
-          f"in {args.backend} {args.env}:")
-    print(f"mean {result.mean:.3f}  std {result.std:.3f}  min {result.min:g}  max {result.max:g}")
+    values = _physics_settings(args)[0]
+    env_params = cartpole.make_params(args.env)
+    settings = physics_settings(values, env_params)
+    policies, network, description = _load_policies(args.policy, args.run)
+    policy = _one_policy(policies, network)
+    if policy is not None and len(settings) == 1 and args.out is None:
+        result = evaluate(policy, episodes=args.episodes, max_steps=args.max_steps,
+                          env=env_params.replace(**settings[0]), seed=args.seed,
+                          backend=args.backend)
+        print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps "
+              f"in {args.backend} {args.env} ({physics_label(settings[0])}):")
+        print(f"mean {result.mean:.3f}  std {result.std:.3f}  min {result.min:g}  max {result.max:g}")
+        return
+    if args.backend != "jaxpg":
+        raise ValueError("backend: gymnasium plays one policy in one physics setting; several "
+                         "policies, settings or --out are played in jaxpg")
+    if args.out is not None:
+        results.check_out_dir(args.out)
+    result = robustness(policies, values, episodes=args.episodes, max_steps=args.max_steps,
+                        seed=args.seed, network=network, env=env_params)
+    print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps in "
+          f"jaxpg {args.env}, median (mean) return over every policy's episodes:")
+    for label, returns in zip(result.labels, result.pooled):
+        print(f"  {label}: {np.median(returns):g} ({returns.mean():.1f})")
+    if args.out is not None:
+        with results.staged(args.out) as stage:
+            _write_robustness(stage, result, values, args)
+        print(f"wrote {args.out}/: robustness.json, robustness.csv, robustness.png")
+
+
+def _write_robustness(folder, result, values, args):
+    """Writes `result` of `jaxpg evaluate` as robustness.json, robustness.csv (a row per policy
+    and setting) and robustness.png (the median return per setting, `_median_table`)."""
+    from jaxpg import plots, results
+
+    median = np.median(result.pooled, axis=1)
+    results.write_json(folder / "robustness.json", {
+        "policy": args.policy, "run": args.run, "env": args.env, "episodes": args.episodes,
+        "max_steps": args.max_steps, "seed": args.seed, "settings": result.settings,
+        "median_per_setting": median, "mean_per_setting": result.pooled.mean(axis=1),
+        "median": result.median, "mean": result.mean,  # [G, S, P]
+    })
+    cells = np.indices(result.mean.shape).reshape(3, -1)  # (g, s, p) of every cell, in order
+    results.write_csv(folder / "robustness.csv", {
+        "g": cells[0], "s": cells[1],
+        **{name: [result.settings[p][name] for p in cells[2]] for name in result.settings[0]},
+        **{name: getattr(result, name).ravel() for name in ("mean", "median", "std", "min", "max")},
+    })
+    table, rows, columns, across = _median_table(median, result.settings, values)
+    num_policies = result.returns.shape[0] * result.returns.shape[1]
+    plots.return_heatmap(table, rows, columns, folder / "robustness.png", args.max_steps,
+                         xlabel=across, title=f"median return of {num_policies} policies x "
+                         f"{args.episodes} episodes")
+
+
+def _median_table(median, settings, values):
+    """The medians `[P]` of the settings of the physics flags' `values` as a table: the last
+    flag's values across, the combinations of the others down (one cell without flags).
+
+    Returns:
+      (`[rows, columns]`, row labels, column labels, what the columns vary or None)
+    """
+    from jaxpg.evaluate import physics_label
+
+    across = list(values)[-1] if values else None
+    columns = values[across] if values else [None]
+    rows = [physics_label({name: value for name, value in setting.items() if name != across}, "all")
+            for setting in settings[::len(columns)]]
+    labels = [f"{value:g}" if across else "default physics" for value in columns]
+    return median.reshape(len(rows), len(columns)), rows, labels, across
 
 
 def cmd_render(args):
     from jaxpg import cartpole, render
 
-    policy, description = _load_policy(args.policy)
+    policy, description = _load_policy(args.policy, args.run)
     check_int("seed", args.seed, 0)
     env_params = cartpole.make_params(args.env)
     frames = render.render_episode(policy, seed=args.seed, env_params=env_params, max_steps=args.max_steps)
@@ -389,17 +503,25 @@ def build_parser():
     p.add_argument("--process-id", type=int, help="this process's number, 0 to N-1; 0 writes the results")
     p.set_defaults(handler=cmd_sweep)
 
-    p = commands.add_parser("evaluate", help="evaluate a policy in jaxpg or in Gymnasium")
-    p.add_argument("--policy", default="basic", help="basic, or a directory written by jaxpg train")
+    p = commands.add_parser("evaluate", help="evaluate a policy in jaxpg or in Gymnasium, or many "
+                            "policies in many physics settings")
+    p.add_argument("--policy", default="basic", help="basic, or a directory written by jaxpg train "
+                   "or jaxpg sweep (all its runs, or one with --run)")
+    p.add_argument("--run", type=_run_index, help="g,s: one run of a sweep, seed s of setting g")
+    p.add_argument("--out", help="a directory for robustness.json, .csv and .png (median return "
+                   "per physics setting)")
     p.add_argument("--episodes", type=int, default=500)
     p.add_argument("--max-steps", type=int, default=200)
     p.add_argument("--backend", default="jaxpg", help="jaxpg or gymnasium (default %(default)s)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--env", default="CartPole-v1", help="CartPole-v1 or CartPole-v0")
+    _add_physics_args(p, ranges=False)
     p.set_defaults(handler=cmd_evaluate)
 
     p = commands.add_parser("render", help="draw an episode as a GIF (or MP4)")
-    p.add_argument("--policy", default="basic", help="basic, or a directory written by jaxpg train")
+    p.add_argument("--policy", default="basic", help="basic, or a directory written by jaxpg train "
+                   "or jaxpg sweep (with --run)")
+    p.add_argument("--run", type=_run_index, help="g,s: one run of a sweep, seed s of setting g")
     p.add_argument("--out", default="cartpole.gif", help="a .gif or .mp4 path (default %(default)s)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-steps", type=int, default=200)

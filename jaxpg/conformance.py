@@ -17,6 +17,15 @@ batched over all episodes, takes the same actions. Two comparisons run side by s
 Actions mix a stabilizing controller with random pushes, at a rate that goes from 0 in the first
 episode to 1 in the last, so that the episodes cover truncation, the cart leaving the track and the
 pole falling.
+
+Whole episodes, too, under explicit Euler: the basic policy plays the same episodes (from
+Gymnasium's `reset(seed=seed + i)`) in jaxpg and in Gymnasium, each on its own observations
+(`evaluate` with either backend), and every episode's return must be identical. Its episodes last
+a few dozen steps there, too few for rounding to part them. Semi-implicit Euler conserves energy:
+the same policy then keeps the pole up for hundreds of steps, past where any two implementations
+part (even jaxpg in float64, whose sine is not numpy's), so there only the steps are compared.
+Besides the presets' variants, three physics settings change every physical field of
+`CartPoleParams`, as Gymnasium's `CartPoleEnv` attributes of the same names.
 """
 
 import dataclasses
@@ -27,7 +36,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import cartpole
-from jaxpg.evaluate import check_int, make_gymnasium_env, reset_gymnasium
+from jaxpg.evaluate import (check_int, evaluate, gymnasium_reset_states, make_gymnasium_env,
+                            reset_gymnasium)
+from jaxpg.policies import basic_policy
 
 COMPONENTS = ("x", "x_dot", "theta", "theta_dot")
 
@@ -38,6 +49,11 @@ VARIANTS = {
     "euler": {"integrator": "euler"},
     "semi-implicit": {"integrator": "semi-implicit"},
     "sutton_barto_reward": {"sutton_barto_reward": True},
+    # Non-default physics: derived masses and lengths, stronger forces, shorter steps, a narrower
+    # track and a tighter angle (the cart leaves the track more often than the pole falls).
+    "long-heavy-pole": {"masspole": 0.5, "length": 1.0},
+    "heavy-cart-gravity": {"gravity": 15.0, "masscart": 2.0, "force_mag": 15.0},
+    "short-steps-narrow": {"tau": 0.01, "x_threshold": 1.0, "theta_threshold_radians": 0.1},
 }
 
 # Float spacings (of jaxpg's dtype, at the threshold) within which a termination may go either way:
@@ -203,10 +219,12 @@ class VariantReport:
     diverged: int  # episodes whose free-running trajectory parted from Gymnasium's
     first_divergence: int | None  # the earliest step count at which one parted
     median_divergence: float | None
+    equal_returns: int | None  # the basic policy's episodes with identical returns in both;
+    # None where they are not compared (semi-implicit Euler)
 
     @property
     def ok(self):
-        return self.stats.ok
+        return self.stats.ok and self.equal_returns in (None, self.episodes)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -227,7 +245,7 @@ class Report:
         header = (f"{'variant':<20} {'episodes':>8} {'steps':>7} {'term':>5} {'trunc':>5}  "
                   + " ".join(f"{c:>9}" for c in COMPONENTS)
                   + f"  {'reward':>6} {'term':>4} {'trunc':>5} {'near':>4}  "
-                  f"{'diverged':>8} {'first':>5} {'median':>6}  ok")
+                  f"{'diverged':>8} {'first':>5} {'median':>6}  {'returns':>7}  ok")
         lines = [
             f"jaxpg ({self.dtype}) vs Gymnasium CartPoleEnv (float64), re-synced every step:",
             f"max per-step error (relative above 1) must be <= {self.tolerance:g}; mismatches of "
@@ -236,6 +254,8 @@ class Report:
             f"{THRESHOLD_SPACINGS} {self.dtype} spacings of a threshold; not a failure).",
             f"Free-running, informational: episodes whose trajectory parted (error > "
             f"{self.divergence_tolerance:g} or different termination), at which step.",
+            "Returns: the basic policy's episodes, each played in both, whose returns are "
+            "identical; all must be (under explicit Euler).",
             "",
             header,
             "-" * len(header),
@@ -248,7 +268,7 @@ class Report:
                 + f"  {s.reward_mismatches:>6} {s.terminated_mismatches:>4} "
                 f"{s.truncated_mismatches:>5} {s.near_threshold:>4}  {v.diverged:>8} "
                 f"{_or_dash(v.first_divergence):>5} {_or_dash(v.median_divergence):>6}  "
-                + ("yes" if v.ok else "NO")
+                f"{_fraction(v.equal_returns, v.episodes):>7}  " + ("yes" if v.ok else "NO")
             )
         lines.append("")
         lines.append("conformance: " + ("OK" if self.ok else "FAILED"))
@@ -257,6 +277,10 @@ class Report:
 
 def _or_dash(value):
     return "-" if value is None else f"{value:g}"
+
+
+def _fraction(count, total):
+    return "-" if count is None else f"{count}/{total}"
 
 
 def run(episodes=100, seed=0, env_params=None, variants=None, divergence_tolerance=1e-3):
@@ -326,11 +350,26 @@ def _run_variant(name, env_params, episodes, seed, dtype, divergence_tolerance):
         alive &= ~(gym_out.terminated | gym_out.truncated)
         gym_values, free_values = gym_out.values, free.values
     parted = parted_at[parted_at > 0]
+    equal_returns = None
+    if env_params.integrator == "euler":
+        equal_returns = int(np.equal(*episode_returns(env_params, episodes, seed)).sum())
     return VariantReport(
         name, episodes, stats, len(parted),
         int(parted.min()) if len(parted) else None,
         float(np.median(parted)) if len(parted) else None,
+        equal_returns,
     )
+
+
+def episode_returns(env_params, episodes, seed):
+    """The returns `[episodes]` of the basic policy's episodes from Gymnasium's `reset(seed=seed +
+    i)` to `env_params.max_steps`: (in jaxpg, in Gymnasium)."""
+    def play(**backend):
+        return evaluate(basic_policy, episodes, int(env_params.max_steps), env_params, seed,
+                        **backend).returns
+
+    return (play(init_states=gymnasium_reset_states(episodes, seed, env_params)),
+            play(backend="gymnasium"))
 
 
 def _step_all(gym_envs, actions, alive, values):

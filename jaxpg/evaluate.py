@@ -1,4 +1,5 @@
-"""Evaluates a policy on CartPole, in jaxpg (one compiled batch) or in Gymnasium itself.
+"""Evaluates a policy on CartPole, in jaxpg (one compiled batch) or in Gymnasium itself, and many
+policies in many physics settings at once (`robustness`).
 
 Both backends can start from the very same initial states: `gymnasium_reset_states` reads the
 float64 states that Gymnasium's `reset(seed=seed + i)` produces, and `evaluate(...,
@@ -6,19 +7,19 @@ init_states=...)` starts jaxpg's episodes from them.
 """
 
 import functools
+import re
 from typing import NamedTuple
 
 import gymnasium
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import cartpole, rollout
+from jaxpg import cartpole, rng, rollout, sweep, train_config
+from jaxpg.policies import PolicyNetwork, init_network, network_policy
 
 BACKENDS = ("jaxpg", "gymnasium")
-
-# The CartPoleParams fields that Gymnasium's CartPoleEnv keeps as attributes of the same name.
-_GYMNASIUM_ATTRIBUTES = ("gravity", "masscart", "masspole", "length", "force_mag", "tau",
-                         "x_threshold", "theta_threshold_radians")
+BLOCK = 16  # runs `robustness` plays side by side: the fastest of 8 to 256 (benchmarks/README.md)
 
 
 class EvalResult(NamedTuple):
@@ -71,7 +72,8 @@ def make_gymnasium_env(env_params, env_id="CartPole-v1"):
         sutton_barto_reward=bool(env_params.sutton_barto_reward),
     )
     reference = gym_env.unwrapped
-    for name in _GYMNASIUM_ATTRIBUTES:
+    # CartPoleEnv keeps every physical field as an attribute of the same name.
+    for name in train_config.PHYSICS:
         setattr(reference, name, float(getattr(env_params, name)))
     # Gymnasium integrates semi-implicitly for any value other than "euler".
     reference.kinematics_integrator = env_params.integrator
@@ -117,7 +119,8 @@ def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, bac
 
     Args:
       policy: `(obs [E, 4], u [E]) -> action [E]` with u uniform in [0, 1), e.g.
-        `policies.basic_policy`.
+        `policies.basic_policy`. A policy that is a pytree of arrays (`policies.network_policy`)
+        is an argument of the compiled program: a new one of the same shapes compiles nothing.
       episodes: E, a positive integer.
       max_steps: the longest an episode may run, a positive integer.
       env: a preset name ("CartPole-v1", "CartPole-v0") or a `cartpole.CartPoleParams`.
@@ -145,8 +148,8 @@ def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, bac
     else:
         init_state = None if init_states is None else _init_state(init_states, episodes)
         returns = _jaxpg_returns(
-            jax.random.PRNGKey(seed), env_params, init_state, policy, episodes, max_steps
-        )
+            jax.random.PRNGKey(seed), env_params, init_state, _as_argument(policy), episodes,
+            max_steps)
     return summarize(returns)
 
 
@@ -167,14 +170,35 @@ def _init_state(init_states, episodes):
     return cartpole.CartPoleState.from_array(np.asarray(init_states))
 
 
-# The policy is static (hashed by identity), so a module-level function such as basic_policy
-# compiles once per shape and settings, however often it is evaluated.
-@functools.partial(jax.jit, static_argnames=("policy", "episodes", "max_steps"))
+def _as_argument(policy):
+    """`policy` as an argument of a compiled function: a pytree (`policies.NetworkPolicy`) as it
+    is, its arrays traced; a plain function wrapped, as a static part of the program (hashed by
+    identity, so a module-level function such as basic_policy compiles once per shape)."""
+    if _is_function(policy):
+        return jax.tree_util.Partial(policy)
+    return policy
+
+
+def _is_function(policy):
+    """Whether `policy` is a callable that is not a pytree of arrays (a plain function)."""
+    return callable(policy) and jax.tree_util.treedef_is_leaf(jax.tree.structure(policy))
+
+
+def reset_states(key, episodes, env_params):
+    """The initial states of `evaluate`'s (and `robustness`'s) episodes from `key`: those that
+    `rollout.rollout(key, ...)` draws. Returns a `CartPoleState` with `[episodes]` leaves."""
+    key_reset, _ = rng.split(key)
+    return rollout.reset_batch(key_reset, episodes, env_params)[1]
+
+
+@functools.partial(jax.jit, static_argnames=("episodes", "max_steps"))
 def _jaxpg_returns(key, env_params, init_state, policy, episodes, max_steps):
+    if init_state is None:
+        init_state = reset_states(key, episodes, env_params)
     return rollout.rollout(key, policy, env_params, episodes, max_steps, init_state).returns
 
 
-@functools.partial(jax.jit, static_argnums=0)
+@jax.jit
 def _act(policy, obs, key, episode, t):
     """The policy's action for one observation `[4]`, with the uniform of step t of `episode`."""
     key = jax.random.fold_in(jax.random.fold_in(key, episode), t)
@@ -185,6 +209,7 @@ def _gymnasium_returns(policy, episodes, max_steps, env_params, env_id, seed):
     """Returns `[episodes]` of episodes played in Gymnasium, one Python step at a time."""
     gym_env = make_gymnasium_env(env_params, env_id)
     key = jax.random.PRNGKey(seed)
+    policy = _as_argument(policy)
     returns = np.zeros(episodes)
     for episode in range(episodes):
         obs = reset_gymnasium(gym_env, seed + episode, env_params)
@@ -195,3 +220,185 @@ def _gymnasium_returns(policy, episodes, max_steps, env_params, env_id, seed):
             if terminated or truncated:
                 break
     return returns
+
+
+# --- Many policies in many physics settings ------------------------------------------------------
+
+
+class Robustness(NamedTuple):
+    """The returns of G x S policies, each in P physics settings, and their statistics."""
+
+    returns: np.ndarray  # [G, S, P, E] float64: cell (g, s, p) as `evaluate` plays it
+    settings: list  # P dicts {field: value} of the physical fields that `env_grid` set
+
+    @property
+    def labels(self):
+        """The P settings in words (`physics_label`)."""
+        return [physics_label(setting) for setting in self.settings]
+
+    @property
+    def pooled(self):
+        """`[P, G * S * E]` every policy's returns in each setting."""
+        return np.moveaxis(self.returns, 2, 0).reshape(len(self.settings), -1)
+
+    @property
+    def mean(self):
+        """`[G, S, P]` mean return over the episodes."""
+        return self.returns.mean(axis=-1)
+
+    @property
+    def median(self):
+        """`[G, S, P]` median return over the episodes."""
+        return np.median(self.returns, axis=-1)
+
+    @property
+    def std(self):
+        """`[G, S, P]` population standard deviation of the returns, as `EvalResult.std`."""
+        return self.returns.std(axis=-1)
+
+    @property
+    def min(self):
+        """`[G, S, P]` lowest return."""
+        return self.returns.min(axis=-1)
+
+    @property
+    def max(self):
+        """`[G, S, P]` highest return."""
+        return self.returns.max(axis=-1)
+
+
+def physics_label(setting, none="default physics"):
+    """A physics setting in words, e.g. "length=0.5, masspole=0.1"; `none` for no field."""
+    return ", ".join(f"{name}={value:g}" for name, value in setting.items()) or none
+
+
+def physics_settings(env_grid, env_params):
+    """The physics settings of `env_grid`, validated against `env_params`, as a list of P dicts.
+
+    Args:
+      env_grid: None (`env_params` alone: one empty setting); a dict of `CartPoleParams` field to
+        values, whose product the settings are, in `sweep.expand_grid`'s order (the last field
+        varying fastest); or a list of dicts, the settings themselves.
+      env_params: the `CartPoleParams` that every setting modifies.
+
+    Raises:
+      ValueError: one line naming the field, for an unknown field, an empty list, a repeated
+        value or setting, or a value that is not physical (a mass, length or tau at or below 0,
+        anything not finite).
+    """
+    unknown = _fields(env_grid) - set(train_config.PHYSICS)
+    if unknown:
+        raise ValueError(f"env_grid: unknown field(s) {', '.join(sorted(map(str, unknown)))}; "
+                         f"allowed: {', '.join(train_config.PHYSICS)}")
+    try:
+        settings = sweep.expand_grid(train_config.TrainConfig(env=env_params), env_grid)
+    except ValueError as error:  # the grid's own messages, for the argument of this name
+        raise ValueError(re.sub("^grid:", "env_grid:", str(error))) from None
+    return [{name: value for name, value in setting.items() if name in train_config.PHYSICS}
+            for setting in settings]
+
+
+def _fields(env_grid):
+    """The fields that a dict or a list of dicts names (none for anything else)."""
+    if isinstance(env_grid, dict):
+        return set(env_grid)
+    if isinstance(env_grid, list | tuple):
+        return {name for setting in env_grid if isinstance(setting, dict) for name in setting}
+    return set()
+
+
+def robustness(policies, env_grid=None, episodes=100, max_steps=200, seed=0, network=None,
+               env="CartPole-v1"):
+    """Plays every policy in every physics setting, as one compiled program.
+
+    Cell (g, s, p) holds the very episodes of `evaluate(policy (g, s), episodes, max_steps,
+    env=<env with setting p>, seed=seed)`: the same initial states and uniforms, the same returns.
+    The runs (a policy in a setting) play side by side on the last axis of every array, `BLOCK`
+    at a time. Parameters and physics are arguments of the program: other policies and values of
+    the same shapes compile nothing.
+
+    Args:
+      policies: a `SweepResult`, or policy parameters stacked `[G, S, ...]` (every leaf) of
+        `network`; or a policy function `(obs [..., 4], u [...]) -> action [...]` of any batch
+        shape, such as `policies.basic_policy` (G = S = 1).
+      env_grid: the physics settings (`physics_settings`): a dict of `CartPoleParams` field to
+        values (their product), a list of dicts, or None for `env` itself.
+      episodes: E, a positive integer.
+      max_steps: the longest an episode may run, a positive integer.
+      seed: a non-negative integer; every cell plays the episodes of `PRNGKey(seed)`.
+      network: the policy module of the parameters (`TrainConfig.network`); by default the
+        default network, `policies.PolicyNetwork()`.
+      env: a preset name or a `CartPoleParams`: the physics that the settings modify.
+
+    Returns:
+      `Robustness` with returns `[G, S, P, E]` and the P settings.
+    """
+    check_int("episodes", episodes, 1)
+    check_int("max_steps", max_steps, 1)
+    check_int("seed", seed, 0)
+    env_params, _ = resolve_env(env)
+    settings = physics_settings(env_grid, env_params)
+    network = PolicyNetwork() if network is None else network
+    function, policy_params = _split_policies(policies, network)
+    grid_shape = (1, 1) if function else jax.tree.leaves(policy_params)[0].shape[:2]
+    physics = {name: np.asarray([getattr(env_params.replace(**setting), name)
+                                 for setting in settings], jnp.result_type(float))
+               for name in train_config.PHYSICS}
+    returns = _robustness_returns(
+        jax.random.PRNGKey(seed),
+        jax.tree.map(lambda leaf: leaf.reshape(-1, *leaf.shape[2:]), policy_params), physics,
+        env_params, None if function else network, function, episodes, max_steps)
+    return Robustness(np.asarray(returns, np.float64).reshape(*grid_shape, *returns.shape[1:]),
+                      settings)
+
+
+def _split_policies(policies, network):
+    """(a policy function, None), or (None, the parameters `[G, S, ...]` of `network`), checked."""
+    if isinstance(policies, sweep.SweepResult):
+        policies = policies.policy_params
+    if _is_function(policies):
+        return policies, None
+    want = jax.eval_shape(lambda key: init_network(key, network),
+                          jax.ShapeDtypeStruct((2,), jnp.uint32))
+    shapes = [np.shape(leaf) for leaf in jax.tree.leaves(policies)]
+    if (jax.tree.structure(policies) != jax.tree.structure(want)
+            or len({shape[:2] for shape in shapes}) != 1
+            or any(shape[2:] != leaf.shape for shape, leaf in zip(shapes, jax.tree.leaves(want)))):
+        raise ValueError(
+            f"policies: expected a SweepResult, a policy function, or parameters of the "
+            f"{type(network).__name__} stacked [G, S, ...] on "
+            f"{jax.tree.map(lambda leaf: leaf.shape, want)}; got "
+            f"{jax.tree.map(np.shape, policies) if isinstance(policies, dict) else policies!r}")
+    return None, policies
+
+
+@functools.partial(jax.jit, static_argnames=("network", "function", "episodes", "max_steps"))
+def _robustness_returns(key, policy_params, physics, env_params, network, function, episodes,
+                        max_steps):
+    """The returns `[N, P, E]` of N policies (parameters `[N, ...]` of `network`, or one
+    `function`) in P settings (`physics`: `[P]` values of each physical field)."""
+    num_policies = 1 if function else jax.tree.leaves(policy_params)[0].shape[0]
+    num_settings = len(next(iter(physics.values())))
+    num_runs = num_policies * num_settings
+    num_blocks = -(-num_runs // BLOCK)
+    # Run r is policy r // P in setting r % P; the last block is padded with copies of the last run.
+    runs = np.minimum(np.arange(num_blocks * BLOCK), num_runs - 1).reshape(num_blocks, BLOCK)
+    init_state = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf[:, None], (episodes, BLOCK)),
+                              reset_states(key, episodes, env_params))
+
+    def play_block(block):
+        block_params, block_physics = block  # [BLOCK, ...] and [BLOCK] leaves
+        act = function or network_policy(
+            network, jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, -1), block_params), runs=True)
+
+        def policy(obs, u):  # every run draws evaluate's uniforms `[E]`
+            return act(obs, jnp.broadcast_to(u[:, None], obs.shape[:-1]))
+
+        return rollout.rollout(key, policy, env_params.replace(**block_physics), episodes,
+                               max_steps, init_state).returns
+
+    returns = jax.lax.map(play_block, (
+        jax.tree.map(lambda leaf: leaf[runs // num_settings], policy_params),
+        jax.tree.map(lambda leaf: leaf[runs % num_settings], physics)))  # [blocks, E, BLOCK]
+    returns = jnp.moveaxis(returns, 1, 2).reshape(num_blocks * BLOCK, episodes)[:num_runs]
+    return returns.reshape(num_policies, num_settings, episodes)

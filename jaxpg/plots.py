@@ -292,14 +292,58 @@ def improvement_heatmap(probability, labels, path):
         raise ValueError(f"probability: expected shape [G, G], got {probability.shape}")
     fig = _figure(FIGSIZE)
     ax = fig.add_subplot()
-    image = ax.imshow(probability, cmap="RdBu", vmin=0, vmax=1)
-    fig.colorbar(image, ax=ax, label="P(row > column)")
-    for (i, j), value in np.ndenumerate(probability):
-        # Dark text on the light middle of the colour map, white on its dark ends.
-        ax.text(j, i, f"{value:.2f}", ha="center", va="center", fontsize="small",
-                color="black" if 0.2 < value < 0.8 else "white")
-    ticks = np.arange(len(labels))
-    ax.set_xticks(ticks, labels, rotation=30, ha="right", fontsize="small")
-    ax.set_yticks(ticks, labels, fontsize="small")
+    # Dark text on the light middle of the colour map, white on its dark ends.
+    _written_heatmap(fig, ax, probability, labels, labels, "P(row > column)", "{:.2f}",
+                     lambda value: 0.2 < value < 0.8, cmap="RdBu", vmin=0, vmax=1)
     ax.set_title("probability of improvement")
     return _save(fig, path)
+
+
+def return_heatmap(values, row_labels, column_labels, path, max_return, xlabel=None,
+                   title=None):
+    """Plots a return per cell of a table of settings, e.g. the median per physics setting.
+
+    Args:
+      values: `[R, C]` returns, e.g. `Robustness.median` over every policy's episodes, one cell
+        per setting (a grid's last field across, the others down).
+      row_labels: R names of the rows, e.g. "length=0.5".
+      column_labels: C names of the columns, e.g. "0.1".
+      path: the image file to write.
+      max_return: the top of the colour scale (its bottom is 0), e.g. the episodes' step limit.
+      xlabel: what the columns vary, e.g. "masspole".
+      title: optional figure title.
+
+    Returns:
+      The `pathlib.Path` written.
+    """
+    (values,) = _check_alike(list(row_labels), "RC", values=values)
+    if values.shape[1] != len(column_labels):
+        raise ValueError(f"column_labels: expected {values.shape[1]} labels, got "
+                         f"{len(column_labels)}")
+    if not max_return > 0:
+        raise ValueError(f"max_return: must be positive, got {max_return}")
+    fig = _figure(FIGSIZE)
+    ax = fig.add_subplot()
+    # Dark text on the light upper part of the colour map, white on its dark lower part.
+    _written_heatmap(fig, ax, values, row_labels, column_labels, "return", "{:g}",
+                     lambda value: value > 0.6 * max_return, cmap="viridis", vmin=0,
+                     vmax=max_return)
+    if xlabel:
+        ax.set_xlabel(xlabel)
+    if title:
+        ax.set_title(title)
+    return _save(fig, path)
+
+
+def _written_heatmap(fig, ax, values, row_labels, column_labels, colorbar_label, template, light,
+                     **colours):
+    """Draws `values` `[R, C]` as an image with a colour bar and labelled rows and columns, each
+    value written in its cell (`template`), in black where `light(value)`, else in white."""
+    image = ax.imshow(values, **colours)
+    fig.colorbar(image, ax=ax, label=colorbar_label)
+    for (i, j), value in np.ndenumerate(values):
+        ax.text(j, i, template.format(value), ha="center", va="center", fontsize="small",
+                color="black" if light(value) else "white")
+    ax.set_xticks(np.arange(len(column_labels)), column_labels, rotation=30, ha="right",
+                  fontsize="small")
+    ax.set_yticks(np.arange(len(row_labels)), row_labels, fontsize="small")

@@ -4,6 +4,7 @@ A policy, as `rollout` uses it, maps a batch of observations `[E, 4]` and unifor
 [0, 1) to actions `[E]`: 0 pushes left, 1 pushes right.
 """
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -11,8 +12,9 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
-from jaxpg import sums
+from jaxpg import runwise, sums
 
 ACTIVATIONS = {
     "elu": nn.elu,
@@ -205,16 +207,40 @@ def sample_action(logit, u):
     return (u > jax.nn.sigmoid(logit)).astype(jnp.int32)
 
 
-def network_policy(network, policy_params):
-    """A policy module as a policy `(obs [E, 4], u [E]) -> action [E]` that samples its actions.
+@struct.dataclass
+class NetworkPolicy:
+    """A policy module and its parameters as a policy `(obs [E, 4], u [E]) -> action [E]` that
+    samples its actions (`network_policy`).
 
-    For a `PolicyNetwork`, `policy_params` may hold R runs' parameters on trailing axes, for
-    observations `[E, R, 4]` (computed by `forward`); any other module takes one run's.
+    A pytree of the parameters (the module and `runs` are static): a compiled function that takes
+    it as an argument serves every policy of the same module and shapes without compiling again.
     """
 
-    def policy(obs, u):
-        if isinstance(network, PolicyNetwork):
-            return sample_action(forward(policy_params, obs, network.activation), u)
-        return sample_action(logits(network, policy_params, obs), u)
+    network: nn.Module = struct.field(pytree_node=False)
+    policy_params: dict
+    runs: bool = struct.field(pytree_node=False, default=False)
 
-    return policy
+    def __call__(self, obs, u):
+        if isinstance(self.network, PolicyNetwork):
+            return sample_action(forward(self.policy_params, obs, self.network.activation), u)
+        # Any other module's sums in a fixed order (`runwise`), alone as beside other runs, so
+        # that a run acts alike in both.
+        run_logits = runwise.runwise(functools.partial(logits, self.network), batched=self.runs)
+        return sample_action(
+            run_logits(self.policy_params, jnp.moveaxis(obs, -2, -1) if self.runs else obs), u)
+
+
+def network_policy(network, policy_params, runs=False):
+    """A policy module as a policy `(obs [E, 4], u [E]) -> action [E]` that samples its actions.
+
+    Args:
+      network: a `PolicyNetwork` or any other policy module (`logits`).
+      policy_params: its parameters. For a `PolicyNetwork` they may hold R runs' parameters on
+        trailing axes (kernels `[K, N, R]`), for observations `[E, R, 4]` (computed by `forward`).
+      runs: for any other module: whether the parameters carry a trailing run axis `[..., R]`
+        (observations `[E, R, 4]`, uniforms `[E, R]`).
+
+    Returns:
+      A `NetworkPolicy`.
+    """
+    return NetworkPolicy(network, policy_params, runs)

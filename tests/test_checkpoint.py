@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import SMALL_CONFIG
 from flax import serialization
 
 import jaxpg
@@ -111,7 +112,7 @@ def _payload(**changes):
         (lambda: np.random.default_rng(0).bytes(256), "not a jaxpg checkpoint"),
         (lambda: json.dumps({"format": "jaxpg-checkpoint"}).encode(), "not a jaxpg checkpoint"),
         (lambda: serialization.msgpack_serialize({"weights": [1, 2]}), "format marker"),
-        (lambda: _payload(format_version=2), "newer"),
+        (lambda: _payload(format_version=checkpoint.FORMAT_VERSION + 1), "newer"),
         (lambda: _payload(config={**checkpoint.config_to_dict(CONFIG), "hidden": [7]}), "fit"),
         (lambda: _payload(config={"colour": "red"}), "damaged"),
     ],
@@ -161,6 +162,45 @@ def test_metrics_of_a_diverged_run_load(tmp_path):
     path = tmp_path / "policy.msgpack"
     path.write_bytes(_payload(metrics=jax.tree.map(np.asarray, metrics._asdict())))
     np.testing.assert_array_equal(checkpoint.load(path).metrics.loss, metrics.loss)
+
+
+def test_a_sweeps_runs_in_one_file(tmp_path, small_sweep):
+    path = checkpoint.save_sweep(tmp_path, small_sweep, SMALL_CONFIG)
+    assert path == tmp_path / "policies.msgpack"
+    payload = serialization.msgpack_restore(path.read_bytes())
+    assert payload["format_version"] == 2 and payload["runs"]["seeds"] == [0, 1, 2, 3, 4]
+    assert payload["policy_params"]["params"]["Dense_0"]["kernel"].shape == (2, 5, 4, 5)
+    loaded = checkpoint.load(tmp_path)  # the folder `jaxpg sweep` writes
+    assert loaded.grid == small_sweep.grid and loaded.config == SMALL_CONFIG
+    np.testing.assert_array_equal(loaded.seeds, small_sweep.seeds)
+    _assert_trees_equal(loaded.policy_params, small_sweep.policy_params)
+    _assert_trees_equal(loaded.metrics, small_sweep.metrics)
+    run = checkpoint.select_run(loaded, 1, 3)  # seed 3 at the second learning rate
+    _assert_trees_equal(run.policy_params,
+                        jax.tree.map(lambda leaf: leaf[1, 3], small_sweep.policy_params))
+    assert run.config == dataclasses.replace(SMALL_CONFIG, learning_rate=0.02)
+    assert run.metrics.mean_return.shape == (3,) and run.grid is None
+
+
+def test_a_sweeps_run_takes_its_physics_and_bad_runs_are_refused(tmp_path):
+    grid = [{"learning_rate": 0.01, "discount": 0.95, "entropy_coef": 0.0, "length": 1.0}]
+    params = jax.tree.map(lambda leaf: np.stack([[leaf, leaf]]), _params(CONFIG))  # [1, 2, ...]
+    path = checkpoint.save(tmp_path / "p.msgpack", params, CONFIG,
+                           runs={"grid": grid, "seeds": [4, 7]})
+    run = checkpoint.select_run(checkpoint.load(path), 0, 1)
+    assert run.config.env == CONFIG.env.replace(length=1.0)
+    for g, s in [(1, 0), (0, 2), (-1, 0)]:
+        with pytest.raises(ValueError, match=r"^run: expected g in \[0, 1\) and s in \[0, 2\)"):
+            checkpoint.select_run(checkpoint.load(path), g, s)
+    with pytest.raises(ValueError, match="^run: the checkpoint holds one run"):
+        checkpoint.select_run(checkpoint.load(checkpoint.save(tmp_path, _params(CONFIG), CONFIG)),
+                              0, 0)
+    with pytest.raises(ValueError, match="policy_params: parameters do not fit"):
+        checkpoint.save(tmp_path / "q.msgpack", params, CONFIG, runs={"grid": grid, "seeds": [4]})
+    path.write_bytes(_payload(format_version=2, policy_params=params,
+                              runs={"grid": grid * 2, "seeds": [4, 7]}))
+    with pytest.raises(ValueError, match="damaged.*do not fit"):
+        checkpoint.load(path)
 
 
 def test_missing_file_raises_file_not_found(tmp_path):

@@ -13,7 +13,8 @@ import pytest
 from conftest import claimed_by_another_process
 from jax.experimental.compilation_cache import compilation_cache
 
-from jaxpg import TrainConfig, checkpoint, cli, executables, flags, policies
+from jaxpg import TrainConfig, cartpole, checkpoint, cli, executables, flags, policies
+from jaxpg.evaluate import evaluate, robustness
 
 SMALL = ["--iterations", "3", "--episodes", "2", "--max-steps", "20", "--quiet", "--no-cache"]
 
@@ -244,3 +245,80 @@ def test_train_and_sweep_take_a_loss_an_entropy_bonus_and_a_linear_policy(tmp_pa
         np.testing.assert_array_equal(saved["entropy_coef"], [0, 0.01])
     assert (sweep_out / "runs.csv").read_text().splitlines()[0].startswith(
         "learning_rate,discount,entropy_coef,seed")
+
+
+@pytest.fixture(scope="module")
+def sweep_folder(tmp_path_factory):
+    """A sweep of two seeds at two learning rates, as `jaxpg sweep` writes it."""
+    out = tmp_path_factory.mktemp("cli") / "sweep"
+    assert cli.main(["sweep", *SMALL, "--seeds", "2", "--lr", "0.01,0.02", "--out", str(out)]) == 0
+    return out
+
+
+def test_a_sweeps_policies_are_evaluated_in_many_physics_settings(sweep_folder, tmp_path, capsys):
+    loaded = checkpoint.load(sweep_folder)  # policies.msgpack: every run's parameters
+    assert [setting["learning_rate"] for setting in loaded.grid] == [0.01, 0.02]
+    assert loaded.policy_params["params"]["Dense_0"]["kernel"].shape == (2, 2, 4, 5)
+    out = tmp_path / "robust"
+    capsys.readouterr()
+    assert cli.main(["evaluate", "--policy", str(sweep_folder), "--length", "0.25,0.5,1,2",
+                     "--masspole", "0.1,0.5", "--episodes", "5", "--max-steps", "30",
+                     "--out", str(out)]) == 0
+    assert "masspole=0.5, length=2: " in capsys.readouterr().out
+    assert {p.name for p in out.iterdir()} == {"robustness.json", "robustness.csv",
+                                               "robustness.png"}
+    saved = json.loads((out / "robustness.json").read_text())
+    expected = robustness(loaded.policy_params, {"masspole": [0.1, 0.5],
+                                                 "length": [0.25, 0.5, 1.0, 2.0]},
+                          episodes=5, max_steps=30)
+    assert saved["settings"] == expected.settings
+    np.testing.assert_array_equal(saved["median"], expected.median)  # [G, S, P]
+    np.testing.assert_array_equal(saved["median_per_setting"], np.median(expected.pooled, axis=1))
+    rows = (out / "robustness.csv").read_text().splitlines()
+    assert rows[0] == "g,s,masspole,length,mean,median,std,min,max" and len(rows) == 1 + 2 * 2 * 8
+
+
+def test_one_run_of_a_sweep_is_evaluated_and_rendered(sweep_folder, tmp_path, capsys):
+    params = checkpoint.load(sweep_folder).policy_params
+    alone = evaluate(policies.network_policy(policies.PolicyNetwork(),
+                                             jax.tree.map(lambda leaf: leaf[1, 0], params)),
+                     episodes=5, max_steps=30, env=cartpole.V1.replace(length=2.0),
+                     backend="gymnasium")
+    capsys.readouterr()
+    assert cli.main(["evaluate", "--policy", str(sweep_folder), "--run", "1,0", "--length", "2",
+                     "--episodes", "5", "--max-steps", "30", "--backend", "gymnasium"]) == 0
+    assert f"mean {alone.mean:.3f}  std {alone.std:.3f}" in capsys.readouterr().out
+    assert cli.main(["evaluate", "--policy", str(sweep_folder), "--episodes", "5"]) == 0
+    assert "default physics: " in capsys.readouterr().out  # every run, in the default physics
+    gif = tmp_path / "run.gif"
+    assert cli.main(["render", "--policy", str(sweep_folder), "--run", "0,1", "--out", str(gif),
+                     "--max-steps", "10"]) == 0
+    assert gif.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+
+
+@pytest.mark.parametrize("args, word", [
+    (["--length", "0,1"], "length: must be positive"),
+    (["--masspole", "-0.1"], "masspole: must be positive"),
+    (["--masscart", "0"], "masscart: must be positive"),
+    (["--tau", "0"], "tau: must be positive"),
+    (["--gravity", "nan"], "gravity: must be finite"),
+    (["--length", "1,1"], "length: the grid repeats"),
+    (["--length", ""], "--length"),
+    (["--length", "0.5:2"], "--length"),
+    (["--run", "2,0"], "run: expected g in [0, 2)"),
+    (["--run", "x"], "--run"),
+    (["--policy", "basic", "--run", "0,0"], "run: only for a sweep"),
+    (["--backend", "gymnasium", "--length", "1,2"], "backend"),
+    (["--episodes", "0"], "episodes"),
+    (["--lenght", "1"], "unrecognized arguments"),
+])
+def test_bad_evaluate_input_exits_2_with_one_line_and_writes_nothing(sweep_folder, tmp_path,
+                                                                      capsys, args, word):
+    out = tmp_path / "out"
+    try:
+        status = cli.main(["evaluate", "--policy", str(sweep_folder), "--out", str(out), *args])
+    except SystemExit as exit_:  # argparse's own errors
+        status = exit_.code
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(lines) == 1 and word in lines[0], lines
+    assert not out.exists()

@@ -1,10 +1,12 @@
 """The parity harness: passes on jaxpg as it is, fails on a wrong constant."""
 
 import jax
+import numpy as np
 import pytest
 from flax import struct
 
 from jaxpg import cartpole, conformance
+from jaxpg.train_config import PHYSICS
 
 
 @struct.dataclass
@@ -29,6 +31,25 @@ def test_default_run_is_ok():
     assert report.format().endswith("conformance: OK")
 
 
+def test_three_physics_settings_play_identical_episodes():
+    """Every physical field set apart from its default, and 100 episodes of the basic policy with
+    identical returns in jaxpg and in Gymnasium's CartPoleEnv with the same attributes."""
+    physics = {name: value for name, value in conformance.VARIANTS.items()
+               if set(value) & set(PHYSICS)}
+    assert len(physics) == 3 and set().union(*physics.values()) == set(PHYSICS)
+    assert all(getattr(cartpole.V1, field) != value
+               for setting in physics.values() for field, value in setting.items())
+    report = conformance.run(variants=list(physics))
+    assert report.ok, report.format()
+    for variant in report.variants:
+        assert variant.episodes == variant.equal_returns == 100
+        assert f"{variant.name} " in report.format() and "100/100" in report.format()
+    in_jaxpg, in_gymnasium = conformance.episode_returns(
+        cartpole.V1.replace(**physics["long-heavy-pole"]), 100, 0)
+    np.testing.assert_array_equal(in_jaxpg, in_gymnasium)
+    assert len(np.unique(in_jaxpg)) > 10  # episodes of many lengths, not one
+
+
 def test_float64_run_is_ok():
     with jax.enable_x64(True):
         report = conformance.run(episodes=20, variants=["v1", "semi-implicit"])
@@ -44,6 +65,7 @@ def test_wrong_polemass_length_is_flagged():
     # more than 1e-6 at the first step of every episode.
     assert variant.stats.max_error[1] > 1e-3  # x_dot
     assert variant.first_divergence == 1
+    assert variant.equal_returns < variant.episodes
     assert report.format().endswith("conformance: FAILED")
 
 

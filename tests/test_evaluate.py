@@ -1,12 +1,18 @@
-"""Evaluation in jaxpg against evaluation in Gymnasium itself."""
+"""Evaluation in jaxpg against evaluation in Gymnasium itself; many policies in many physics
+settings (`robustness`) against each evaluated alone."""
 
+import math
+
+import flax.linen as nn
+import jax
 import numpy as np
 import pytest
 import scipy.stats
+from conftest import xla_compiles
 from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
 
-from jaxpg import cartpole
-from jaxpg.evaluate import EvalResult, evaluate, gymnasium_reset_states
+from jaxpg import cartpole, policies
+from jaxpg.evaluate import EvalResult, evaluate, gymnasium_reset_states, robustness
 from jaxpg.policies import basic_policy
 
 
@@ -103,3 +109,119 @@ def test_bad_reset_states_arguments_raise():
         gymnasium_reset_states(0)
     with pytest.raises(ValueError, match="^env:"):
         gymnasium_reset_states(5, env="Pendulum-v1")
+
+
+# --- robustness: many policies in many physics settings -------------------------------------------
+
+GRID = {"length": [0.25, 1.0, 2.0], "masspole": [0.1, 0.5]}
+
+
+class CategoricalPolicy(nn.Module):
+    """A module of the user's own: the two logits of (left, right), from one hidden layer."""
+
+    @nn.compact
+    def __call__(self, obs):
+        return nn.Dense(2)(nn.tanh(nn.Dense(8)(obs)))
+
+
+def stacked_params(network, grid_shape, seed=0):
+    """Freshly initialised parameters of `network`, stacked `[G, S, ...]`."""
+    keys = jax.random.split(jax.random.PRNGKey(seed), math.prod(grid_shape))
+    params = jax.vmap(lambda key: policies.init_network(key, network))(keys)
+    # Scaled up so that the policies differ: some keep the pole up for a while, some do not.
+    return jax.tree.map(lambda leaf: 3 * leaf.reshape(*grid_shape, *leaf.shape[1:]), params)
+
+
+def assert_cells_equal_evaluate_alone(result, policy_of, episodes, max_steps, seed, env=cartpole.V1):
+    grid_shape = result.returns.shape[:2]
+    for g, s in np.ndindex(grid_shape):
+        for p, setting in enumerate(result.settings):
+            alone = evaluate(policy_of(g, s), episodes=episodes, max_steps=max_steps,
+                             env=env.replace(**setting), seed=seed)
+            np.testing.assert_array_equal(result.returns[g, s, p], alone.returns,
+                                          err_msg=f"cell {(g, s, p)}: {setting}")
+
+
+@pytest.mark.parametrize("network", [policies.PolicyNetwork(), CategoricalPolicy()],
+                         ids=["default-network", "own-module"])
+def test_each_cell_is_evaluate_of_that_policy_alone(network):
+    params = stacked_params(network, (2, 3))
+    result = robustness(params, GRID, episodes=12, max_steps=80, seed=3, network=network)
+    assert result.returns.shape == (2, 3, 6, 12) and result.returns.dtype == np.float64
+    assert result.settings[:2] == [{"length": 0.25, "masspole": 0.1},
+                                   {"length": 0.25, "masspole": 0.5}]  # the last field fastest
+    assert len(np.unique(result.mean)) > 10  # the cells differ: the check below means something
+    assert_cells_equal_evaluate_alone(
+        result, lambda g, s: policies.network_policy(
+            network, jax.tree.map(lambda leaf: leaf[g, s], params)), 12, 80, seed=3)
+
+
+def test_a_sweeps_policies_and_a_list_of_settings_in_float64(small_sweep):
+    settings = [{"gravity": 5.0, "tau": 0.01}, {"force_mag": 20.0}, {"x_threshold": 1.0}]
+    with jax.enable_x64(True):
+        result = robustness(small_sweep, settings, episodes=5, max_steps=40, env="CartPole-v0")
+        assert_cells_equal_evaluate_alone(
+            result, lambda g, s: policies.network_policy(
+                policies.PolicyNetwork(), jax.tree.map(lambda leaf: leaf[g, s],
+                                                       small_sweep.policy_params)),
+            5, 40, seed=0, env=cartpole.V0)
+    assert result.returns.shape == (2, 5, 3, 5)
+    # A list's settings name every field any of them sets; the others keep the preset's values.
+    assert result.settings[1] == {"gravity": 9.8, "force_mag": 20.0, "tau": 0.02,
+                                  "x_threshold": 2.4}
+
+
+def test_a_policy_function_and_the_statistics():
+    result = robustness(basic_policy, {"length": [0.5, 2.0]}, episodes=30, max_steps=100)
+    assert result.returns.shape == (1, 1, 2, 30)
+    assert_cells_equal_evaluate_alone(result, lambda g, s: basic_policy, 30, 100, seed=0)
+    assert result.mean[0, 0, 1] > result.mean[0, 0, 0]  # a longer pole falls more slowly
+    for name in ("mean", "median", "std", "min", "max"):
+        np.testing.assert_array_equal(getattr(result, name),
+                                      getattr(np, name)(result.returns, axis=-1))
+    default = robustness(basic_policy, episodes=30, max_steps=100)
+    assert default.settings == [{}]
+    np.testing.assert_array_equal(default.returns[0, 0, 0], result.returns[0, 0, 0])
+
+
+def test_new_policies_and_physics_of_the_same_shapes_compile_nothing():
+    network = policies.PolicyNetwork()
+    robustness(stacked_params(network, (2, 2)), GRID, episodes=4, max_steps=20)
+    evaluate(policies.network_policy(network, policies.init_network(jax.random.PRNGKey(0), network)),
+             episodes=4, max_steps=20)
+    with xla_compiles() as compiled:
+        robustness(stacked_params(network, (2, 2), seed=1), {"length": [3.0, 4.0, 5.0],
+                                                             "masspole": [0.2, 0.3]},
+                   episodes=4, max_steps=20, seed=7)
+        evaluate(policies.network_policy(
+            network, policies.init_network(jax.random.PRNGKey(1), network)), episodes=4,
+            max_steps=20, env=cartpole.CartPoleParams(length=0.7), seed=2)
+    assert compiled == []
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"env_grid": {"lenght": [1.0]}}, "env_grid: unknown field"),
+    ({"env_grid": {"learning_rate": [0.1]}}, "env_grid: unknown field"),
+    ({"env_grid": {"length": []}}, "length: "),
+    ({"env_grid": {"length": [0.5, 0.5]}}, "length: "),
+    ({"env_grid": {"length": [0.0]}}, "length: must be positive"),
+    ({"env_grid": {"masspole": [-0.1]}}, "masspole: must be positive"),
+    ({"env_grid": {"masscart": [0.0]}}, "masscart: must be positive"),
+    ({"env_grid": {"tau": [0.0]}}, "tau: must be positive"),
+    ({"env_grid": {"gravity": [np.inf]}}, "gravity: must be finite"),
+    ({"env_grid": [{"length": 1.0}, {"length": 1}]}, "env_grid: the list repeats"),
+    ({"env_grid": []}, "env_grid: "),
+    ({"env_grid": "length"}, "env_grid: "),
+    ({"policies": {"params": {}}}, "policies: "),
+    ({"policies": stacked_params(policies.PolicyNetwork(), (2, 2))}, "policies: "),  # hidden=3
+    ({"episodes": 0}, "episodes: "),
+    ({"max_steps": 1.5}, "max_steps: "),
+    ({"seed": -1}, "seed: "),
+    ({"env": "CartPole-v9"}, "env: "),
+])
+def test_bad_robustness_arguments_raise_one_line_before_compiling(kwargs, match):
+    kwargs = {"policies": stacked_params(policies.PolicyNetwork((3,)), (1, 2)),
+              "network": policies.PolicyNetwork((3,)), **kwargs}
+    with xla_compiles() as compiled, pytest.raises(ValueError, match=f"^{match}") as error:
+        robustness(**kwargs)
+    assert "\n" not in str(error.value) and not any("robustness" in name for name in compiled)

@@ -108,3 +108,19 @@ def test_improvement_heatmap(tmp_path):
     _assert_png(path, 800, 450)
     with pytest.raises(ValueError, match="^probability"):
         plots.improvement_heatmap(probability[:, :2], LABELS, tmp_path / "x.png")
+
+
+def test_return_heatmap(tmp_path):
+    median = np.array([[12.0, 30.5, 200.0], [8.0, 21.0, 187.0]])
+    labels = ["length=0.5", "length=1"], ["0.1", "0.3", "0.5"]
+    path = plots.return_heatmap(median, *labels, tmp_path / "robustness.png", 200,
+                                xlabel="masspole", title="median return")
+    _assert_png(path, 800, 450)
+    with pytest.raises(ValueError, match="^column_labels"):
+        plots.return_heatmap(median, labels[0], labels[1][:2], tmp_path / "x.png", 200)
+    with pytest.raises(ValueError, match="^labels"):
+        plots.return_heatmap(median, labels[0][:1], labels[1], tmp_path / "x.png", 200)
+    with pytest.raises(ValueError, match="^values"):
+        plots.return_heatmap(median[0], labels[0], labels[1], tmp_path / "x.png", 200)
+    with pytest.raises(ValueError, match="^max_return"):
+        plots.return_heatmap(median, *labels, tmp_path / "x.png", 0)
