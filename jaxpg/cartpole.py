@@ -3,6 +3,7 @@
 Operation order follows Gymnasium's `step` exactly, so that in float64 the two agree to rounding.
 """
 
+import dataclasses
 import math
 
 import jax
@@ -96,14 +97,30 @@ _POSITIVE = ("masscart", "masspole", "length", "force_mag", "tau", "x_threshold"
              "theta_threshold_radians", "max_steps")
 
 
+_NUMBERS = tuple(field.name for field in dataclasses.fields(CartPoleParams)
+                 if field.metadata.get("pytree_node", True))
+MAX_STEPS_LIMIT = 2**31  # episodes count their steps in int32
+
+
 def check_params(env_params):
-    """Raises a ValueError naming the first invalid field; values under a trace are skipped."""
+    """Raises a ValueError naming the first invalid field: a value that is not finite, a mass,
+    length, force, time step or threshold at or below 0, a `max_steps` that is not an integer in
+    [1, MAX_STEPS_LIMIT), or reset bounds out of order. Values under a trace are skipped."""
     if not isinstance(env_params, CartPoleParams):
         raise ValueError(f"env_params: expected a CartPoleParams, got {type(env_params).__name__}")
     if env_params.integrator not in INTEGRATORS:
         raise ValueError(
             f"integrator: must be one of {', '.join(INTEGRATORS)}, got {env_params.integrator!r}"
         )
+    for name in _NUMBERS:
+        value = _concrete(getattr(env_params, name))
+        if value is not None and value.dtype.kind not in "iuf":
+            raise ValueError(f"{name}: must be a number, got {value}")
+        if value is not None and not np.all(np.isfinite(value)):
+            raise ValueError(f"{name}: must be finite, got {value}")
+    steps = _concrete(env_params.max_steps)
+    if steps is not None and not (steps.dtype.kind in "iu" and np.all(steps < MAX_STEPS_LIMIT)):
+        raise ValueError(f"max_steps: must be an integer in [1, 2**31), got {steps}")
     for name in _POSITIVE:
         value = _concrete(getattr(env_params, name))
         if value is not None and not np.all(value > 0):

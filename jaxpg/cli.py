@@ -6,10 +6,14 @@ one line on stderr, never a traceback.
 
 import argparse
 import dataclasses
+import fractions
+import os
 import pathlib
 import re
+import signal
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -53,7 +57,8 @@ _BYTE_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 def _bytes(text):
     """`2G`, `512MB`, `1.5GiB` or plain bytes, as a number of bytes (K, M, G, T: powers of 1024)."""
     match = _BYTES.fullmatch(text.strip())
-    size = int(float(match[1]) * _BYTE_UNITS[match[2].upper()]) if match else 0
+    # Exactly, as a fraction: a float would overflow to infinity on a long number.
+    size = int(fractions.Fraction(match[1]) * _BYTE_UNITS[match[2].upper()]) if match else 0
     if size < 1:
         raise argparse.ArgumentTypeError(
             f"expected a positive size such as 2G, 512M or 1000000, got {text!r}")
@@ -220,8 +225,9 @@ def _load_policy(spec, run=None):
 
 
 def cmd_train(args):
-    from jaxpg import checkpoint, plots, results
-    from jaxpg.reinforce import train
+    from jaxpg import budget, checkpoint, plots, results
+    from jaxpg.reinforce import first_nonfinite, train
+    from jaxpg.sweep import last_mean
 
     config = _config(args, learning_rate=args.lr, discount=args.discount,
                      entropy_coef=args.entropy_coef)
@@ -235,17 +241,21 @@ def cmd_train(args):
         config = dataclasses.replace(config, env=cartpole.make_params(
             args.env, **{name: given[0] for name, given in values.items()}))
     check_int("seed", args.seed, 0)
+    budget.check(config)  # before anything is written, traced or allocated
     out = results.claim(args.out)  # held until the results are in place: a second run is refused
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     result = train(config, seed=args.seed, show_progress=not args.quiet)
     seconds = time.perf_counter() - start
     metrics = {name: np.asarray(v) for name, v in result.metrics.columns().items()}
-    final = float(metrics["mean_return"][-10:].mean())
+    final = float(last_mean(result.metrics.mean_return))
+    diverged = int(first_nonfinite(result.metrics))  # train() has warned of it
     with results.staged(out) as stage:
         checkpoint.save(stage / checkpoint.FILENAME, result.policy_params, config, result.metrics)
         summary = {"seed": args.seed, "config": checkpoint.config_to_dict(config),
-                   "last_10_mean_return": final, "seconds": seconds, "metrics": metrics}
+                   "last_10_mean_return": final, "seconds": seconds,
+                   "first_nonfinite_iteration": diverged if diverged >= 0 else None,
+                   "metrics": metrics}
         results.write_json(stage / "metrics.json", summary)
         results.write_csv(stage / "metrics.csv", {"iteration": np.arange(config.iterations), **metrics})
         plots.learning_curve(result.metrics, stage / "learning_curve.png",
@@ -283,8 +293,9 @@ def _join_processes(args):
 
 def cmd_sweep(args):
     writes_results = _join_processes(args)  # first: it must come before JAX computes anything
-    from jaxpg import checkpoint, plots, report, results
-    from jaxpg.sweep import expand_grid, sweep
+    from jaxpg import checkpoint, plots, results
+    from jaxpg.reinforce import first_nonfinite
+    from jaxpg.sweep import check_arguments, sweep
 
     if args.seeds < 1:
         raise ValueError(f"seeds: must be a positive integer, got {args.seeds}")
@@ -292,12 +303,14 @@ def cmd_sweep(args):
                      entropy_coef=args.entropy_coef[0])
     grid = {"learning_rate": args.lr, "discount": args.discount, "entropy_coef": args.entropy_coef,
             **_physics_settings(args)[0]}
-    expand_grid(config, grid)  # validates before compiling
+    # Before anything is written, traced or allocated.
+    check_arguments(config, range(args.seeds), grid, args.memory_budget)
+    from jaxpg import report  # after the checks: it imports scipy, in half a second
     out = (results.claim if writes_results else results.check_out_dir)(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet,
-                  memory_budget=args.memory_budget)
+                  memory_budget=args.memory_budget, eval_episodes=args.eval_episodes)
     seconds = time.perf_counter() - start
     if not writes_results:
         return
@@ -306,13 +319,16 @@ def cmd_sweep(args):
     with results.staged(out) as stage:
         np.savez_compressed(stage / "metrics.npz", seeds=swept.seeds,
                             **{name: [g[name] for g in swept.grid] for name in swept.grid[0]},
-                            **swept.metrics.columns())
+                            **swept.metrics.columns(), **_held_out(swept))
         num_settings, num_seeds = s.final_return.shape
         results.write_csv(stage / "runs.csv", {
             **{name: np.repeat([g[name] for g in swept.grid], num_seeds) for name in swept.grid[0]},
             "seed": np.tile(swept.seeds, num_settings),
             "last_10_mean_return": s.final_return.ravel(),
             "first_solved_iteration": s.first_solved.ravel(),
+            "first_nonfinite_iteration": first_nonfinite(swept.metrics).ravel(),
+            **{f"{name}_mean": returns.mean(axis=-1).ravel()
+               for name, returns in _held_out(swept).items()},
         })
         results.write_json(stage / "summary.json", {
             "format": report.SWEEP_FORMAT,
@@ -324,8 +340,14 @@ def cmd_sweep(args):
         plots.sweep_curves(s.median, s.q25, s.q75, s.solved_by, labels, config.solved_return,
                            stage / "sweep.png")
         checkpoint.save_sweep(stage / checkpoint.SWEEP_FILENAME, swept, config)
-    for label, solved, final in zip(labels, s.fraction_solved, np.median(s.final_return, axis=1)):
-        print(f"{label}: median last-10 mean return {final:.1f}, solved {solved:.0%} of {args.seeds} seeds")
+    held_out = {name: np.median(returns.mean(axis=-1), axis=1)
+                for name, returns in _held_out(swept).items()}
+    for g, (label, solved, final) in enumerate(
+            zip(labels, s.fraction_solved, np.median(s.final_return, axis=1))):
+        beside = "".join(f", {name.replace('_', ' ')} {medians[g]:.1f}"
+                         for name, medians in held_out.items())
+        print(f"{label}: median last-10 mean return {final:.1f}{beside}, solved {solved:.0%} of "
+              f"{args.seeds} seeds")
     print(f"{s.final_return.size} runs in {seconds:.1f} s; wrote {out}/: metrics.npz, runs.csv, summary.json, sweep.png, {checkpoint.SWEEP_FILENAME}")
     if args.seeds < 2:
         print("no comparison report: its confidence intervals need at least 2 seeds")
@@ -333,6 +355,13 @@ def cmd_sweep(args):
     # Written after the sweep's own files, from them: a failing report never costs the runs.
     print(report.format_report(report.write([out], out)))
     print(f"wrote {out}/: {', '.join((report.COMPARISON_FILE, *report.PLOT_FILES))}")
+
+
+def _held_out(swept):
+    """The sweep's held-out returns by name, `[G, S, N]`: none where it played none."""
+    if swept.eval_returns is None:
+        return {}
+    return {"eval_returns": swept.eval_returns, "eval_greedy_returns": swept.eval_greedy_returns}
 
 
 def cmd_compare(args):
@@ -422,6 +451,7 @@ def _median_table(median, settings, values):
 def cmd_render(args):
     from jaxpg import cartpole, render
 
+    render.check_animation_path(args.out, "out")
     policy, description = _load_policy(args.policy, args.run)
     check_int("seed", args.seed, 0)
     env_params = cartpole.make_params(args.env)
@@ -441,9 +471,11 @@ def cmd_conformance(args):
 def cmd_reproduce(args):
     from jaxpg import policies, returns
     from jaxpg.evaluate import evaluate, gymnasium_reset_states
-    from jaxpg.reinforce import train
+    from jaxpg.reinforce import check_seed, train
+    from jaxpg.sweep import last_mean
     from jaxpg.train_config import TrainConfig
 
+    check_seed(args.seed)
     _enable_compilation_cache(args.no_cache)
     print("Basic policy, 500 episodes of 200 steps from Gymnasium's reset(seed=episode):")
     states = gymnasium_reset_states(500)
@@ -458,7 +490,7 @@ def cmd_reproduce(args):
     result = train(TrainConfig(), seed=args.seed, show_progress=not args.quiet)
     mean_return = np.asarray(result.metrics.mean_return)
     _beside("mean rewards at the last iteration", round(float(mean_return[-1]), 1), BOOK_LAST_ITERATION)
-    print(f"  mean over the last 10 iterations: {mean_return[-10:].mean():.1f}")
+    print(f"  mean over the last 10 iterations: {last_mean(mean_return):.1f}")
 
 
 def _beside(what, ours, book):
@@ -496,6 +528,8 @@ def build_parser():
     p.add_argument("--discount", type=_float_list, default=[0.95], help="discounts, e.g. 0.9,0.95")
     p.add_argument("--entropy-coef", type=_float_list, default=[0.0], help="entropy bonus weights, e.g. 0,0.01")
     p.add_argument("--out", default="runs/sweep", help="output directory (default %(default)s)")
+    p.add_argument("--eval-episodes", type=int, default=0, help="held-out episodes each run's "
+                   "final policy plays, sampled and greedy (default none)")
     p.add_argument("--memory-budget", type=_bytes, help="memory per device for training, e.g. 2G; "
                    "the runs train in chunks that fit it (default: all at once)")
     p.add_argument("--coordinator", help="HOST:PORT of process 0, to sweep over several hosts")
@@ -574,13 +608,56 @@ def _runs_at_once(args):
     return None
 
 
+def _interrupt(signum, frame):
+    """Ctrl-C: stops the command once (KeyboardInterrupt, which `schedule.run` passes on only
+    when its workers have stopped), and ignores any later one while it ends."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    raise KeyboardInterrupt
+
+
+def _unraisable(unraisable):
+    """Raises again a KeyboardInterrupt that Python dropped, raised where exceptions are only
+    reported (a garbage collector's callback, seen during tracing): elsewhere, it stops."""
+    if issubclass(unraisable.exc_type, KeyboardInterrupt):
+        signal.signal(signal.SIGINT, _interrupt)
+        signal.raise_signal(signal.SIGINT)
+    else:
+        sys.__unraisablehook__(unraisable)
+
+
+_UNREADABLE_CACHE = "Error reading persistent compilation cache entry"
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Shows a warning as one line on stderr. JAX warns of each unreadable entry of its
+    compilation cache; the command warns once, of the cache."""
+    text = str(message)
+    if text.startswith(_UNREADABLE_CACHE):
+        import jax
+
+        warnings.filterwarnings("ignore", message=_UNREADABLE_CACHE)
+        text = (f"the compilation cache in {jax.config.jax_compilation_cache_dir} holds "
+                f"unreadable entries, compiled afresh each time; delete it to rebuild it "
+                f"(first: {text})")
+    print(f"{PROG}: warning: {text}", file=sys.stderr)
+
+
 def run(argv=None):
-    """The installed `jaxpg` command: `main` in a process with jaxpg's XLA setting (`flags`)."""
+    """The installed `jaxpg` command: `main` in a process with jaxpg's XLA setting (`flags`),
+    one-line warnings, and Ctrl-C ending it with status 130 and one line."""
     from jaxpg import flags
 
+    signal.signal(signal.SIGINT, _interrupt)
+    sys.unraisablehook = _unraisable
+    warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
     flags.configure_xla(runs=_runs_at_once(args))
-    sys.exit(_execute(args))
+    status = _execute(args)
+    if status == 130:  # at once: threads still compiling would be waited for at exit
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxpg import hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
-from jaxpg.train_config import make_optimizer
+from jaxpg.train_config import make_optimizer, steps_on_gradients
 
 
 class TrainState(NamedTuple):
@@ -46,10 +46,12 @@ class Metrics(NamedTuple):
 
 
 class TrainResult(NamedTuple):
-    """The trained policy and its per-iteration metrics (leading axis `[R]` for several runs)."""
+    """The trained policy and its per-iteration metrics (leading axis `[R]` for several runs),
+    and its held-out `Evaluation` where one was asked for."""
 
     policy_params: dict
     metrics: Metrics
+    evaluation: "Evaluation | None" = None
 
 
 def is_run_alone(train_state):
@@ -143,8 +145,7 @@ def iterate(config, train_state, hyperparams):
     key, key_rollout = rng.split(train_state.key)
     alone = is_run_alone(train_state)
     params = _without_run_axis(train_state.params) if alone else train_state.params
-    env_params = config.env_params if hyperparams.env is None else (
-        _without_run_axis(hyperparams.env) if alone else hyperparams.env)
+    env_params = _physics(config, hyperparams, alone)
     if config.randomize:
         key_rollout, key_physics = rng.split(key_rollout)
         episodes = -(-config.episodes // rollout.LANES) * rollout.LANES if alone else (
@@ -179,6 +180,48 @@ def iterate(config, train_state, hyperparams):
     return TrainState(new_params, opt_state, key), metrics
 
 
+def _physics(config, hyperparams, alone):
+    """The runs' physics: the config's, compiled in, or each run's (`[R]` leaves, scalars for a
+    run alone)."""
+    if hyperparams.env is None:
+        return config.env_params
+    return _without_run_axis(hyperparams.env) if alone else hyperparams.env
+
+
+EVALUATION = 1  # folded into a run's key for its held-out episodes, a key training never draws
+
+
+class Evaluation(NamedTuple):
+    """Held-out returns of each run's policy `[N]` (`[R, N]` for R runs): actions sampled as in
+    training, and greedy (the likelier action)."""
+
+    sampled: jax.Array
+    greedy: jax.Array
+
+
+def evaluate_runs(config, train_state, hyperparams, episodes):
+    """R runs' current policies, each on `episodes` fresh episodes of its own (from its key with
+    `EVALUATION` folded in), in its training physics without randomisation.
+
+    Returns:
+      `Evaluation` with `[R, episodes]` returns; a run plays the same episodes alone as beside
+      others.
+    """
+    alone = is_run_alone(train_state)
+    params = _without_run_axis(train_state.params) if alone else train_state.params
+    keys = jax.vmap(lambda key: jax.random.fold_in(key, EVALUATION))(train_state.key)
+    policy = _policy(config, params, alone)
+
+    def returns(policy):  # [R, episodes]
+        played = rollout.rollout(keys[0] if alone else keys, policy,
+                                 _physics(config, hyperparams, alone), episodes, config.max_steps,
+                                 lanes=rollout.LANES if alone else 1).returns
+        return played[None] if alone else jnp.moveaxis(played, -1, 0)
+
+    return Evaluation(returns(policy),
+                      returns(lambda obs, u: policy(obs, jnp.full_like(u, 0.5))))
+
+
 def _randomized(ranges, env_params, key, episodes):
     """`env_params` with each field of `ranges` drawn per episode, uniformly in [low, high):
     leaves `[episodes]`, or `[episodes, R]` for R keys `[R, 2]`."""
@@ -197,15 +240,8 @@ def _policy(config, params, alone):
     for a run alone) of the runs' parameters."""
     network = config.network
     if config.hand_gradient:  # parameters taken apart where the rollout's kernels use them
-        return lambda obs, u: policies.network_policy(
-            network, policies.unflatten(params, network))(obs, u)
-    logits = runwise.runwise(functools.partial(policies.logits, network), batched=not alone)
-
-    def policy(obs, u):
-        return policies.sample_action(
-            logits(params["policy"], obs if alone else jnp.moveaxis(obs, -2, -1)), u)
-
-    return policy
+        return policies.network_policy(network, policies.unflatten(params, network))
+    return policies.network_policy(network, params["policy"], runs=not alone)
 
 
 def _learn_by_hand(config, train_state, transitions, hyperparams, alone):
@@ -304,6 +340,9 @@ def check_config(config):
     if not isinstance(optimizer, optax.GradientTransformation):
         raise ValueError(f"optimizer: the function must return an optax.GradientTransformation, "
                          f"got {type(optimizer).__name__}")
+    if not steps_on_gradients(optimizer):
+        raise ValueError("optimizer: the function's optimizer asks for more than the gradient, "
+                         "its state and the parameters in its update (as optax's lbfgs does)")
     if config.hand_gradient:
         return ()
     floats = jnp.result_type(float)

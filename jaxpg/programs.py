@@ -10,7 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import cartpole, executables, policies
-from jaxpg.iteration import Metrics, check_config, init_runs, is_run_alone, iterate
+from jaxpg.iteration import (Metrics, check_config, evaluate_runs, init_runs, is_run_alone,
+                             iterate)
 from jaxpg.train_config import TrainConfig
 
 ITERATIONS_PER_CALL = 10  # iterations a call of the program runs at most
@@ -29,6 +30,8 @@ class Program(NamedTuple):
     # leaves stacked [ITERATIONS_PER_CALL, fields, R]): `count` iterations (at most
     # ITERATIONS_PER_CALL), whose metrics fill the first `count` rows; one array per call.
     iterate: Callable  # an `AloneOrTogether`
+    # (TrainState [R], Hyperparams [R], episodes: static int) -> `iteration.Evaluation` [R, N]
+    evaluate: Callable
 
     def metrics(self, rows):
         """`Metrics` from `iterate`'s stacked metrics `[fields, ...]`: leaves `[...]`."""
@@ -121,6 +124,7 @@ def _program(config, physics_in_runs):
                "init"),
         AloneOrTogether(stored(jit_iterate(None), "iterate_alone"),
                         stored(jit_iterate(TOGETHER_OPTIONS), "iterate")),
+        jax.jit(functools.partial(evaluate_runs, config), static_argnames="episodes"),
     )
 
 

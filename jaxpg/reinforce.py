@@ -12,7 +12,7 @@ import warnings
 import jax
 import numpy as np
 
-from jaxpg import flags, policies, programs, progress, schedule
+from jaxpg import budget, flags, policies, programs, progress, schedule
 from jaxpg.train_config import TrainConfig
 
 
@@ -43,6 +43,7 @@ def train(config=TrainConfig(), seed=0, init_params=None, on_iteration=None, sho
     if not isinstance(config, TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     check_seed(seed)
+    budget.check(config)
     flags.configure_unstarted()
     hyperparams = config.hyperparams.per_run()
     program = programs.compiled_program(config, physics_in_runs=hyperparams.env is not None)
@@ -54,7 +55,7 @@ def train(config=TrainConfig(), seed=0, init_params=None, on_iteration=None, sho
         (result,) = schedule.run(program, config.iterations, [(run_keys([seed]), hyperparams)],
                                  progress.together(shown, first_run), init_params)
     result = jax.tree.map(lambda leaf: leaf[0], result)
-    warn_if_diverged(result.metrics.loss[None])
+    warn_if_diverged(jax.tree.map(lambda leaf: leaf[None], result.metrics))
     return result
 
 
@@ -82,11 +83,20 @@ def check_init_params(config, init_params):
     return params
 
 
-def warn_if_diverged(loss, labels=None):
-    """Warns once per run whose loss `[R, I]` is not finite, naming its first such iteration."""
-    loss = np.asarray(loss)
-    bad = ~np.isfinite(loss)
-    for r in np.flatnonzero(bad.any(axis=-1)):
-        which = "" if labels is None else f" of {labels[r]}"
-        warnings.warn(f"loss{which}: not finite from iteration {int(bad[r].argmax())} on "
-                      f"(counted from 0)", RuntimeWarning, stacklevel=3)
+def first_nonfinite(metrics):
+    """The first iteration of each run whose loss or gradient norm is not finite, -1 where none
+    is: `Metrics` `[..., I]` -> ints `[...]`. The parameters take a non-finite gradient's step,
+    so this is also where they may stop being finite."""
+    bad = ~(np.isfinite(metrics.loss) & np.isfinite(metrics.grad_norm))
+    return np.where(bad.any(axis=-1), bad.argmax(axis=-1), -1)
+
+
+def warn_if_diverged(metrics, labels=None):
+    """Warns once per run of `Metrics` `[R, I]` that diverged (`first_nonfinite`), naming its
+    first such iteration."""
+    for r, first in enumerate(first_nonfinite(metrics)):
+        if first >= 0:
+            which = "" if labels is None else f" of {labels[r]}"
+            warnings.warn(f"training{which} diverged: the loss or its gradient is not finite "
+                          f"from iteration {first} on (counted from 0)", RuntimeWarning,
+                          stacklevel=3)

@@ -214,8 +214,26 @@ def save_animation(frames, path, fps=50):
         )
     if not fps > 0:
         raise ValueError(f"fps: must be positive, got {fps}")
+    path = check_animation_path(path)
+    if path.suffix.lower() == ".mp4":
+        # 8-pixel blocks divide 600 x 400 exactly; the default 16 would resize the frames.
+        options = {"plugin": "FFMPEG", "fps": fps, "macro_block_size": 8}
+    else:
+        # The duration is in milliseconds (GIF keeps hundredths); loop=0 repeats forever.
+        options = {"plugin": "pillow", "duration": 1000 / fps, "loop": 0}
+    with results.atomic_path(path) as tmp:
+        iio.imwrite(tmp, frames, **options)
+    return path
+
+
+def check_animation_path(path, name="path"):
+    """`path` as a Path that `save_animation` can write, checked before anything is drawn: a
+    ValueError naming the argument `name` unless it ends with .gif or .mp4 and a file can be
+    created in its folder (an ImportError for MP4 without imageio-ffmpeg)."""
     path = pathlib.Path(path)
     suffix = path.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"{name}: must end with .gif or .mp4, got {path.name!r}")
     if suffix == ".mp4":
         try:
             import imageio_ffmpeg  # noqa: F401  (the plugin imageio needs for MP4)
@@ -223,13 +241,5 @@ def save_animation(frames, path, fps=50):
             raise ImportError(
                 "writing MP4 needs imageio-ffmpeg: pip install imageio-ffmpeg (or write a .gif)"
             ) from None
-        # 8-pixel blocks divide 600 x 400 exactly; the default 16 would resize the frames.
-        options = {"plugin": "FFMPEG", "fps": fps, "macro_block_size": 8}
-    elif suffix == ".gif":
-        # The duration is in milliseconds (GIF keeps hundredths); loop=0 repeats forever.
-        options = {"plugin": "pillow", "duration": 1000 / fps, "loop": 0}
-    else:
-        raise ValueError(f"path: must end with .gif or .mp4, got {path.name!r}")
-    with results.atomic_path(path) as tmp:
-        iio.imwrite(tmp, frames, **options)
+    results.check_writable(path.parent, name)
     return path

@@ -39,6 +39,7 @@ import pathlib
 import re
 import shutil
 import sys
+import tempfile
 import uuid
 
 import numpy as np
@@ -119,8 +120,11 @@ def claim(out):
     real = _real(out)
     if real in _held:
         return out
-    real.parent.mkdir(parents=True, exist_ok=True)
-    lock = open(real.parent / temporary_name(real.name, "lock"), "a")
+    try:
+        real.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(real.parent / temporary_name(real.name, "lock"), "a")
+    except OSError as error:
+        raise ValueError(f"out: cannot write in {real.parent} ({error.strerror})") from None
     try:
         if fcntl is not None:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -352,6 +356,17 @@ def remove_stale_temporaries(directory):
             pass  # being written
         finally:
             os.close(fd)
+
+
+def check_writable(folder, what):
+    """Raises a ValueError naming the argument `what` unless a file can be created in the
+    directory `folder`: tried (and removed), for permissions alone do not tell (a read-only
+    file system, /proc, root)."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as error:
+        raise ValueError(f"{what}: cannot write in {folder} ({error.strerror})") from None
 
 
 def private_directory(path):

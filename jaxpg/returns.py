@@ -42,10 +42,23 @@ def discount_and_normalize_masked(rewards, alive, discount_rate):
     return normalize_masked(discount_masked(rewards, alive, discount_rate), alive)
 
 
+def _check_discount_rate(discount_rate):
+    """Raises a ValueError unless `discount_rate` is one number in [0, 1] (or traced)."""
+    if isinstance(discount_rate, jax.core.Tracer):
+        return
+    rate = np.asarray(discount_rate)
+    if not (rate.ndim == 0 and rate.dtype.kind in "iuf" and 0 <= rate <= 1):
+        raise ValueError(f"discount_rate: must be a number in [0, 1], got {discount_rate!r}")
+
+
 def _pad(all_rewards):
-    """Episodes of different lengths as `[T, E]` rewards and alive mask."""
+    """Episodes of different lengths as `[T, E]` rewards and alive mask; a ValueError for no
+    episode or an empty one."""
     lengths = [len(r) for r in all_rewards]
-    rewards = np.zeros((max(lengths, default=0), len(all_rewards)))
+    if not lengths or 0 in lengths:
+        raise ValueError("rewards: every episode needs at least one reward, got an empty one"
+                         if lengths else "all_rewards: expected at least one episode, got none")
+    rewards = np.zeros((max(lengths), len(all_rewards)))
     for e, episode in enumerate(all_rewards):
         rewards[: len(episode), e] = episode
     alive = np.arange(rewards.shape[0])[:, None] < np.asarray(lengths)[None, :]
@@ -54,6 +67,7 @@ def _pad(all_rewards):
 
 def discount_rewards(rewards, discount_rate):
     """The book's `discount_rewards`: `discount_rewards([10, 0, -50], 0.8)` is `[-22, -40, -50]`."""
+    _check_discount_rate(discount_rate)
     padded, alive, _ = _pad([rewards])
     return discount_masked(padded, alive, discount_rate)[:, 0]
 
@@ -63,6 +77,7 @@ def discount_and_normalize_rewards(all_rewards, discount_rate):
 
     The mean and std are taken over the discounted returns of every step of every episode.
     """
+    _check_discount_rate(discount_rate)
     padded, alive, lengths = _pad(all_rewards)
     normalized = discount_and_normalize_masked(padded, alive, discount_rate)
     return [normalized[:n, e] for e, n in enumerate(lengths)]

@@ -51,7 +51,7 @@ def cpu_blocks(num_runs):
     return list(zip(bounds[:-1], bounds[1:])), size
 
 
-def run(program, iterations, parts, on_iteration=None, policy_params=None):
+def run(program, iterations, parts, on_iteration=None, policy_params=None, eval_episodes=0):
     """Trains each part's runs for `iterations` iterations, every part on its own device.
 
     On a CPU a part trains in `cpu_blocks`, spread over one thread per core: XLA runs such small
@@ -67,9 +67,11 @@ def run(program, iterations, parts, on_iteration=None, policy_params=None):
       on_iteration: optional `(iteration, Metrics) -> None`, the metrics' leaves `[sum of R_p]`,
         called on the host for every iteration in order, while later ones are already training.
       policy_params: optional parameters of one run's policy that every run starts from.
+      eval_episodes: how many held-out episodes each run's final policy plays (`Program.evaluate`).
 
     Returns:
-      One `TrainResult` per part, with numpy leaves `[R_p, ...]` and metrics `[R_p, iterations]`.
+      One `TrainResult` per part, with numpy leaves `[R_p, ...]`, metrics `[R_p, iterations]`
+      and, with `eval_episodes`, an `Evaluation` `[R_p, eval_episodes]`.
     """
     blocks, owners, owned = [], [], []  # owned: how many of a block's runs are its part's
     for index, part in enumerate(parts):
@@ -83,22 +85,30 @@ def run(program, iterations, parts, on_iteration=None, policy_params=None):
     schedule = calls(iterations)
     history = [[None] * len(blocks) for _ in schedule]
     finals = [None] * len(blocks)
+    evaluations = [None] * len(blocks)
     num_workers = min(len(blocks), usable_cores())
     finished = [0] * len(schedule)  # workers that dispatched each call
     failed = []  # workers that raised
     progress_made = threading.Condition()
+    stop = threading.Event()  # the caller was interrupted: workers end before their next call
 
     def train_blocks(indices):
         try:
             states = {i: program.init(*blocks[i]) for i in indices}
             for call, (_, count) in enumerate(schedule):
                 for i in indices:
+                    if stop.is_set():  # with nothing of theirs left running in XLA
+                        jax.block_until_ready(list(states.values()))
+                        return
                     states[i], history[call][i] = program.iterate(
                         states[i], blocks[i][1], np.int32(count))
                 with progress_made:
                     finished[call] += 1
                     progress_made.notify_all()
             for i in indices:
+                evaluations[i] = jax.device_get(
+                    program.evaluate(states[i], blocks[i][1], episodes=eval_episodes)
+                    if eval_episodes else None)
                 finals[i] = jax.device_get(states[i])
         except BaseException:
             with progress_made:
@@ -109,17 +119,22 @@ def run(program, iterations, parts, on_iteration=None, policy_params=None):
     with concurrent.futures.ThreadPoolExecutor(num_workers) as pool:
         workers = [pool.submit(train_blocks, range(w, len(blocks), num_workers))
                    for w in range(num_workers)]
-        for call, (start, count) in enumerate(schedule if on_iteration is not None else []):
-            with progress_made:
-                progress_made.wait_for(lambda: finished[call] == num_workers or failed)
-            if finished[call] < num_workers:
-                break  # a worker failed; its error is raised below
-            shown = np.concatenate([np.asarray(m)[:count, :, :runs]
-                                    for m, runs in zip(history[call], owned)], axis=-1)
-            for offset, rows in enumerate(shown):
-                on_iteration(start + offset, program.metrics(rows))
-        for worker in workers:
-            worker.result()
+        try:
+            for call, (start, count) in enumerate(schedule if on_iteration is not None else []):
+                with progress_made:
+                    progress_made.wait_for(lambda: finished[call] == num_workers or failed)
+                if finished[call] < num_workers:
+                    break  # a worker failed; its error is raised below
+                shown = np.concatenate([np.asarray(m)[:count, :, :runs]
+                                        for m, runs in zip(history[call], owned)], axis=-1)
+                for offset, rows in enumerate(shown):
+                    on_iteration(start + offset, program.metrics(rows))
+            for worker in workers:
+                worker.result()
+        except BaseException:  # Ctrl-C above all (KeyboardInterrupt), or the hook's error
+            stop.set()
+            _wait_through_interrupts(workers)
+            raise
 
     results = []
     for index in range(len(parts)):
@@ -133,9 +148,23 @@ def run(program, iterations, parts, on_iteration=None, policy_params=None):
             lambda *leaves: np.concatenate(leaves, axis=-1),
             *[jax.tree.map(lambda leaf, i=i: leaf[..., :owned[i]], finals[i].params)
               for i in mine]))
+        evaluation = None if not eval_episodes else jax.tree.map(  # [R_p, N]
+            lambda *leaves: np.concatenate(leaves),
+            *[jax.tree.map(lambda leaf, i=i: leaf[:owned[i]], evaluations[i]) for i in mine])
         results.append(TrainResult(jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), params),
-                                   stacked))
+                                   stacked, evaluation))
     return results
+
+
+def _wait_through_interrupts(futures):
+    """Waits for `futures` to end, however often Ctrl-C is pressed meanwhile: the workers end
+    before their caller does, rather than under the interpreter's shutdown."""
+    while True:
+        try:
+            concurrent.futures.wait(futures)
+            return
+        except KeyboardInterrupt:
+            continue
 
 
 def prepare(program, blocks):

@@ -8,7 +8,6 @@ of every process, and trained in chunks when a memory budget asks for it.
 
 import dataclasses
 import itertools
-import numbers
 from typing import NamedTuple
 
 import jax
@@ -16,7 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxpg import cartpole, flags, iteration, programs, progress, reinforce, schedule, train_config
+from jaxpg import (budget, cartpole, flags, iteration, programs, progress, reinforce, schedule,
+                   train_config)
 
 GRID_FIELDS = (*train_config.HYPERPARAMETERS, *train_config.PHYSICS)
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
@@ -58,6 +58,8 @@ class SweepResult(NamedTuple):
     policy_params: dict  # leaves [G, S, ...]
     metrics: iteration.Metrics  # leaves [G, S, I]
     summary: Summary
+    eval_returns: np.ndarray | None = None  # [G, S, N] held-out returns, actions sampled
+    eval_greedy_returns: np.ndarray | None = None  # [G, S, N] the same episodes, greedy actions
 
 
 def expand_grid(config, grid):
@@ -84,7 +86,8 @@ def expand_grid(config, grid):
         settings = [{**{name: getattr(config, name) for name in train_config.HYPERPARAMETERS},
                      **{name: getattr(config.env_params, name)
                         for name in train_config.PHYSICS if name in named},
-                     **{name: _number(name, value) for name, value in setting.items()}}
+                     **{name: train_config.check_number(name, value)
+                        for name, value in setting.items()}}
                     for setting in grid]
         if len({tuple(sorted(s.items())) for s in settings}) != len(settings):
             raise ValueError("grid: the list repeats a setting")
@@ -108,24 +111,14 @@ def _axes(grid):
     _check_fields(grid)
     axes = {}
     for name, values in grid.items():
-        options = [_number(name, value) for value in np.atleast_1d(np.asarray(values)).tolist()]
+        options = [train_config.check_number(name, value)
+                   for value in np.atleast_1d(np.asarray(values)).tolist()]
         if not options:
             raise ValueError(f"{name}: the grid needs at least one value")
         if len(set(options)) != len(options):
             raise ValueError(f"{name}: the grid repeats a value: {options}")
         axes[name] = options
     return axes
-
-
-def _number(name, value):
-    """`value` as a finite Python float; a ValueError naming `name` otherwise."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: must be a number, got {value!r}") from None
-    if not np.isfinite(number):
-        raise ValueError(f"{name}: must be finite, got {number}")
-    return number
 
 
 def setting_hyperparams(config, setting):
@@ -138,11 +131,30 @@ def setting_hyperparams(config, setting):
     return train_config.Hyperparams(**hyper, env=env)
 
 
+SEEDS_ALLOWED = "seeds: must be a non-empty sequence of distinct integers in [0, 2**32)"
+
+
+def count_seeds(seeds):
+    """How many seeds `seeds` holds, found without making an array of them (a range is checked
+    by its bounds here); a ValueError where it is no sequence."""
+    if isinstance(seeds, range) and seeds and not (
+            0 <= min(seeds[0], seeds[-1]) and max(seeds[0], seeds[-1]) < 2**32):
+        raise ValueError(f"{SEEDS_ALLOWED}, got {seeds!r}")
+    try:
+        count = len(seeds)
+    except TypeError:
+        raise ValueError(f"{SEEDS_ALLOWED}, got {seeds!r}") from None
+    if count == 0:
+        raise ValueError(f"{SEEDS_ALLOWED}, got none")
+    return count
+
+
 def check_seeds(seeds):
     """The seeds as a `[S]` uint32 array; a ValueError unless they are distinct integers in range."""
-    seeds = np.asarray(list(seeds) if not isinstance(seeds, np.ndarray) else seeds)
-    if seeds.ndim != 1 or seeds.size == 0 or not np.issubdtype(seeds.dtype, np.integer):
-        raise ValueError("seeds: must be a non-empty sequence of integers")
+    count_seeds(seeds)
+    seeds = np.asarray(seeds if isinstance(seeds, np.ndarray) else list(seeds))
+    if seeds.ndim != 1 or not np.issubdtype(seeds.dtype, np.integer):
+        raise ValueError(f"{SEEDS_ALLOWED}, got {seeds!r}")
     if seeds.min() < 0 or seeds.max() >= 2**32:
         raise ValueError("seeds: must lie in [0, 2**32)")
     if np.unique(seeds).size != seeds.size:
@@ -150,40 +162,49 @@ def check_seeds(seeds):
     return seeds.astype(np.uint32)
 
 
-def check_memory_budget(memory_budget):
-    """Raises a ValueError unless `memory_budget` is None or a positive integer number of bytes."""
-    if memory_budget is None:
-        return
-    is_int = isinstance(memory_budget, numbers.Integral) and not isinstance(memory_budget, bool)
-    if not is_int or memory_budget < 1:
-        raise ValueError(
-            f"memory_budget: must be None or a positive integer number of bytes, got {memory_budget!r}"
-        )
+def check_arguments(config, seeds, grid=None, memory_budget=None):
+    """Checks the arguments of `sweep`, and the memory that its runs need (`budget.check`),
+    before anything is traced or allocated.
+
+    Returns:
+      (the seeds as `check_seeds` gives them, the settings of `expand_grid`)
+    """
+    num_seeds = count_seeds(seeds)
+    settings = expand_grid(config, grid)
+    budget.check_memory_budget(memory_budget)
+    budget.check(config, num_seeds * len(settings),
+                 f"{num_seeds} seeds x {len(settings)} settings")
+    return check_seeds(seeds), settings
 
 
 def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_progress=True,
-          memory_budget=None, on_iteration=None):
+          memory_budget=None, on_iteration=None, eval_episodes=0):
     """Trains every seed under every grid setting, on every device, in chunks that fit a budget.
 
     Args:
       config: the `TrainConfig` every run shares.
-      seeds: S distinct integer seeds.
+      seeds: a sequence (a range, list or array) of S distinct integers in [0, 2**32).
       grid: optional `{"learning_rate": [...], "discount": [...], "entropy_coef": [...]}`; the
         runs are its product.
       show_progress: print a line per iteration (per chunk, when there are several).
       memory_budget: optional bytes of memory one device may use for a chunk of runs (see
-        `fitting_chunk_size`); None trains all runs in one chunk. A budget below what one run
-        needs is a ValueError (raised after compiling one run's program, which measures it).
+        `fitting_chunk_size`); None trains all runs in one chunk. A budget above the machine's
+        memory is a ValueError, as is one below what one run needs (raised after compiling one
+        run's program, which measures it).
       on_iteration: optional `(iteration, metrics) -> None`, called on the host as iterations
         complete, in order, with a `Metrics` of the runs training now (`[C]` leaves: the chunk's
         runs, setting-major, as `SweepResult` orders them).
+      eval_episodes: N: after training, each run's final policy plays N fresh episodes of its
+        own (`iteration.evaluate_runs`), with actions sampled and greedy.
 
     Returns:
-      `SweepResult` with `[G, S, ...]` leaves and the `Summary`, on every process.
+      `SweepResult` with `[G, S, ...]` leaves and the `Summary` (and with `eval_episodes`, the
+      held-out returns `[G, S, N]`), on every process.
     """
-    seeds = check_seeds(seeds)
-    settings = expand_grid(config, grid)
-    check_memory_budget(memory_budget)
+    seeds, settings = check_arguments(config, seeds, grid, memory_budget)
+    if (isinstance(eval_episodes, bool) or not isinstance(eval_episodes, int | np.integer)
+            or not 0 <= eval_episodes <= 2**20):
+        raise ValueError(f"eval_episodes: must be an integer in [0, 2**20], got {eval_episodes!r}")
     inputs = run_inputs(config, seeds, settings)
     num_runs = inputs[0].shape[0]
     flags.configure_unstarted()
@@ -204,7 +225,7 @@ def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_pr
         label = f"runs {start + 1}-{stop} of {num_runs}" if chunk < num_runs else ""
         with progress.bar(config.iterations, show_progress, label=label) as shown:
             part = train_on_devices(program, config.iterations, _take(inputs, indices),
-                                    progress.together(shown, on_iteration))
+                                    progress.together(shown, on_iteration), eval_episodes)
         if result is None:
             result = jax.tree.map(lambda leaf: np.empty((num_runs, *leaf.shape[1:]), leaf.dtype), part)
         for out, leaf in zip(jax.tree.leaves(result), jax.tree.leaves(part)):
@@ -213,9 +234,11 @@ def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_pr
     result = jax.tree.map(lambda leaf: leaf.reshape(num_settings, num_seeds, *leaf.shape[1:]), result)
     summary = summarize(result.metrics.mean_return, config.solved_return)
     reinforce.warn_if_diverged(
-        result.metrics.loss.reshape(num_runs, -1),
+        jax.tree.map(lambda leaf: leaf.reshape(num_runs, -1), result.metrics),
         [f"seed {seed} with {setting}" for setting in settings for seed in seeds])
-    return SweepResult(seeds, settings, result.policy_params, result.metrics, summary)
+    evaluation = result.evaluation or iteration.Evaluation(None, None)
+    return SweepResult(seeds, settings, result.policy_params, result.metrics, summary,
+                       evaluation.sampled, evaluation.greedy)
 
 
 def run_inputs(config, seeds, settings):
@@ -239,7 +262,7 @@ def _take(tree, index):
     return jax.tree.map(lambda leaf: leaf[index], tree)
 
 
-def train_on_devices(program, iterations, inputs, on_iteration=None):
+def train_on_devices(program, iterations, inputs, on_iteration=None, eval_episodes=0):
     """Trains runs `[C]`, a multiple of the device count, on every device of every process.
 
     Process p trains the p-th of `jax.process_count()` equal blocks of the runs, each of its
@@ -262,7 +285,7 @@ def train_on_devices(program, iterations, inputs, on_iteration=None):
     first = jax.process_index() * per_process
     shares = [slice(first + i * per_device, first + (i + 1) * per_device) for i in range(len(devices))]
     parts = [jax.device_put(_take(inputs, share), device) for share, device in zip(shares, devices)]
-    local = schedule.run(program, iterations, parts, on_iteration)
+    local = schedule.run(program, iterations, parts, on_iteration, eval_episodes=eval_episodes)
     local = jax.tree.map(lambda *leaves: np.concatenate(leaves), *local)
     return multihost_utils.process_allgather(local, tiled=True)
 
@@ -335,6 +358,13 @@ def chunk_size(num_runs, num_devices, max_per_device=None):
     return per_device * num_devices
 
 
+def last_mean(mean_return):
+    """The mean of the last `SOLVED_WINDOW` iterations (of all, where fewer) in float64:
+    `[..., I]` -> `[...]`. `Summary.final_return` and `jaxpg train`'s last-10 mean both."""
+    window = min(SOLVED_WINDOW, np.shape(mean_return)[-1])
+    return np.asarray(mean_return, dtype=np.float64)[..., -window:].mean(axis=-1)
+
+
 def summarize(mean_return, solved_return):
     """Summary statistics of `[G, S, I]` per-iteration mean returns."""
     mean_return = np.asarray(mean_return, dtype=np.float64)
@@ -349,7 +379,7 @@ def summarize(mean_return, solved_return):
     ) / window
     reached = trailing >= solved_return
     first_solved = np.where(reached.any(axis=-1), reached.argmax(axis=-1), -1)
-    final_return = trailing[..., -1]
+    final_return = last_mean(mean_return)
     iterations = np.arange(mean_return.shape[-1])
     solved_by = ((first_solved[..., None] >= 0) & (first_solved[..., None] <= iterations)).mean(axis=1)
     return Summary(

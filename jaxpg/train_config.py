@@ -1,7 +1,9 @@
 """The settings of a training run: `TrainConfig`, and the hyperparameters a sweep varies."""
 
 import dataclasses
+import functools
 import inspect
+import warnings
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -69,6 +71,7 @@ class TrainConfig:
         losses.resolve(self.loss)
         check_optimizer(self.optimizer)
         check_hyperparams(self.learning_rate, self.discount, self.entropy_coef)
+        check_number("solved_return", self.solved_return)
         self.env_params  # validates
         object.__setattr__(self, "randomize", check_ranges(self.randomize, self.env_params))
 
@@ -175,22 +178,30 @@ def stack(settings):
 
 
 def check_hyperparams(learning_rate, discount, entropy_coef=0.0):
-    """Raises a ValueError unless every learning rate is positive and finite, every discount in
-    (0, 1] and every entropy coefficient finite and at least 0."""
-    # numpy, not jnp: building a TrainConfig must not start JAX (jax.distributed comes first).
-    checks = (("learning_rate", learning_rate, lambda v: 0 < v < np.inf, "positive and finite"),
+    """Raises a ValueError unless the learning rate is positive, the discount in (0, 1] and the
+    entropy coefficient at least 0, each one finite number (`check_number`)."""
+    checks = (("learning_rate", learning_rate, lambda v: v > 0, "positive"),
               ("discount", discount, lambda v: 0 < v <= 1, "in (0, 1]"),
-              ("entropy_coef", entropy_coef, lambda v: 0 <= v < np.inf, "finite and at least 0"))
-    for name, values, ok, allowed in checks:
-        try:
-            numbers = np.atleast_1d(np.asarray(values, dtype=np.float64))
-        except (TypeError, ValueError):
-            raise ValueError(f"{name}: must be a number, got {values!r}") from None
-        if numbers.ndim != 1:
-            raise ValueError(f"{name}: must be a number, got {values!r}")
-        for value in numbers.tolist():
-            if not ok(value):
-                raise ValueError(f"{name}: must be {allowed}, got {value}")
+              ("entropy_coef", entropy_coef, lambda v: v >= 0, "at least 0"))
+    for name, value, ok, allowed in checks:
+        number = check_number(name, value)
+        if not ok(number):
+            raise ValueError(f"{name}: must be {allowed}, got {number}")
+
+
+def check_number(name, value):
+    """`value` as a float; a ValueError naming `name` unless it is one finite real number (an int
+    or a float of Python, numpy or JAX: not a bool, a string or a list, which a sweep's grid
+    holds)."""
+    # numpy, not jnp: building a TrainConfig must not start JAX (jax.distributed comes first).
+    array = np.asarray(value)
+    if array.ndim != 0 or array.dtype.kind not in "iuf":
+        hint = " (one value; a sweep's grid takes several)" if array.ndim else ""
+        raise ValueError(f"{name}: must be a number{hint}, got {value!r}")
+    number = float(array)
+    if not np.isfinite(number):
+        raise ValueError(f"{name}: must be finite, got {number}")
+    return number
 
 
 def _optimizer_factories():
@@ -212,15 +223,42 @@ def _optimizer_factories():
 OPTIMIZERS = _optimizer_factories()
 
 
+def steps_on_gradients(optimizer):
+    """Whether the `optax.GradientTransformation` `optimizer` updates from what training passes
+    it, the gradient, its state and the parameters, alone (traced on one float by
+    `jax.eval_shape`, which starts nothing): optax's `lbfgs` also asks for the loss's value and
+    function."""
+    leaf = jax.ShapeDtypeStruct((1,), np.float32)
+    try:
+        jax.eval_shape(lambda params: optimizer.update(params, optimizer.init(params), params), leaf)
+    except TypeError:
+        return False
+    return True
+
+
+@functools.cache
+def _trains(name):
+    """Whether the optimizer `OPTIMIZERS[name]` of a learning rate alone `steps_on_gradients`."""
+    try:
+        with warnings.catch_warnings():  # of the optimizer's defaults, for whoever trains with it
+            warnings.simplefilter("ignore")
+            return steps_on_gradients(OPTIMIZERS[name](learning_rate=0.01))
+    except TypeError:  # its factory needs more than a learning rate
+        return False
+
+
 def check_optimizer(name):
-    """Raises a ValueError unless `name` is an optax optimizer's name or a function (whose
-    result `check_optimizer_factory` checks when training starts)."""
+    """Raises a ValueError unless `name` names an optax optimizer that training can step
+    (`steps_on_gradients`), or is a function (whose result `iteration.check_config` checks
+    before anything compiles)."""
     if callable(name):
         return
-    if name not in OPTIMIZERS:
+    if name not in OPTIMIZERS or not _trains(name):
+        allowed = sorted(filter(_trains, OPTIMIZERS))
         raise ValueError(
-            f"optimizer: unknown {name!r}; allowed: optax optimizers such as adam, sgd, rmsprop "
-            f"({len(OPTIMIZERS)} in all: {', '.join(sorted(OPTIMIZERS))})"
+            f"optimizer: {'unknown' if name not in OPTIMIZERS else 'cannot train with'} "
+            f"{name!r}; allowed: optax optimizers that update from the gradient alone, such as "
+            f"adam, sgd, rmsprop ({len(allowed)} in all: {', '.join(allowed)})"
         )
 
 

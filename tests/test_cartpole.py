@@ -188,6 +188,13 @@ def test_step_traces_once_per_shape():
     (lambda: cartpole.make_params(tau=-0.02), "tau"),
     (lambda: cartpole.make_params(integrator="rk4"), "integrator"),
     (lambda: cartpole.make_params(gravityy=9.8), "env_params"),
+    (lambda: cartpole.make_params(masspole=np.inf), "masspole"),
+    (lambda: cartpole.make_params(tau=np.inf), "tau"),
+    (lambda: cartpole.make_params(gravity=np.nan), "gravity"),
+    (lambda: cartpole.make_params(length="0.5"), "length"),
+    (lambda: cartpole.make_params(max_steps=0.5), "max_steps"),
+    (lambda: cartpole.make_params(max_steps=2**40), "max_steps"),  # steps count in int32
+    (lambda: cartpole.make_params(max_steps=0), "max_steps"),
     (lambda: cartpole.CartPoleState.from_array(np.zeros(3)), "state"),
     (lambda: cartpole.CartPoleState.from_array(np.zeros((5, 2))), "state"),
     (lambda: cartpole.step(cartpole.CartPoleState.from_array(np.zeros(4)), 2, cartpole.V1),

@@ -3,14 +3,17 @@
 import json
 import os
 import shutil
+import signal
 import stat
 import subprocess
 import sys
+import time
+import warnings
 
 import jax
 import numpy as np
 import pytest
-from conftest import claimed_by_another_process
+from conftest import claimed_by_another_process, xla_compiles
 from jax.experimental.compilation_cache import compilation_cache
 
 from jaxpg import TrainConfig, cartpole, checkpoint, cli, executables, flags, policies
@@ -239,12 +242,14 @@ def test_train_and_sweep_take_a_loss_an_entropy_bonus_and_a_linear_policy(tmp_pa
     assert (loaded.config.loss, loaded.config.hidden) == ("baseline", ())
     sweep_out = tmp_path / "sweep"
     assert cli.main(["sweep", *SMALL, "--seeds", "2", "--loss", "reward-to-go",
-                     "--entropy-coef", "0,0.01", "--out", str(sweep_out)]) == 0
+                     "--entropy-coef", "0,0.01", "--eval-episodes", "4",
+                     "--out", str(sweep_out)]) == 0
     with np.load(sweep_out / "metrics.npz") as saved:
         assert saved["entropy"].shape == (2, 2, 3)
+        assert saved["eval_returns"].shape == saved["eval_greedy_returns"].shape == (2, 2, 4)
         np.testing.assert_array_equal(saved["entropy_coef"], [0, 0.01])
-    assert (sweep_out / "runs.csv").read_text().splitlines()[0].startswith(
-        "learning_rate,discount,entropy_coef,seed")
+    assert (sweep_out / "runs.csv").read_text().splitlines()[0].endswith(
+        "eval_returns_mean,eval_greedy_returns_mean")
 
 
 @pytest.fixture(scope="module")
@@ -322,3 +327,106 @@ def test_bad_evaluate_input_exits_2_with_one_line_and_writes_nothing(sweep_folde
     lines = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and len(lines) == 1 and word in lines[0], lines
     assert not out.exists()
+
+
+_HUGE_BUDGET = "9" * 400 + "T"  # a float of it is infinite
+
+
+@pytest.mark.parametrize("args, word", [
+    (["train", "--episodes", "1000000000"], "memory: training 1 run for 150 iterations of "
+                                             "1000000000 episodes"),
+    (["train", "--max-steps", "2147483647"], "memory: "),
+    (["train", "--iterations", "1000000000"], "memory: "),
+    (["train", "--hidden", "100000000"], "memory: "),
+    (["sweep", "--seeds", "4294967296"], "memory: training 4294967296 seeds x 1 settings"),
+    (["sweep", "--seeds", "8589934592"], "seeds: must be a non-empty sequence"),
+    (["sweep", "--memory-budget", _HUGE_BUDGET], "memory_budget: "),
+    (["train", "--solved-return", "nan"], "solved_return: must be finite"),
+    (["train", "--optimizer", "lbfgs"], "optimizer: cannot train with 'lbfgs'"),
+    (["sweep", "--lr", "0.01,0.01"], "learning_rate: the grid repeats a value"),
+    (["train", "--out", "/proc/x"], "out: cannot write in /proc"),
+    (["reproduce", "--seed=-1"], "seed: must be an integer"),
+    (["render", "--out", "cartpole.txt"], "out: must end with .gif or .mp4"),
+    (["render", "--out", "/proc/cartpole.gif"], "out: cannot write in /proc"),
+])
+def test_bad_input_is_refused_in_one_line_before_any_work(tmp_path, monkeypatch, capsys, args,
+                                                          word):
+    """Within a second, before anything is traced, compiled, allocated, written or printed; the
+    memory line says what was asked, what it needs and what the machine has."""
+    monkeypatch.chdir(tmp_path)
+    start = time.perf_counter()
+    with xla_compiles() as compiled:
+        status = cli.main([*args, "--quiet"] if args[0] in ("train", "sweep") else args)
+    seconds = time.perf_counter() - start
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert status == 2 and len(lines) == 1 and word in lines[0], lines
+    assert "memory" not in word or "this machine has" in lines[0]
+    assert not compiled and not captured.out and not list(tmp_path.iterdir())
+    assert seconds < 1
+
+
+@pytest.mark.parametrize("command, signals", [("train", 1), ("sweep", 3)])
+def test_ctrl_c_stops_training_at_once_and_keeps_the_earlier_result(tmp_path, command, signals):
+    """SIGINT, once or several times, ends the command within about a second (at the workers'
+    next program call) with status 130 and one line; the earlier result stays as it was."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "metrics.json").write_text("earlier")
+    seeds = ["--seeds", "8"] if command == "sweep" else []
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaxpg.cli", command, *seeds, "--iterations", "100000",
+         "--episodes", "5", "--max-steps", "50", "--no-cache", "--out", str(out)],
+        stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stderr.readline().startswith("Iteration: 10000/100000")  # training
+        start = time.perf_counter()
+        for _ in range(signals):
+            process.send_signal(signal.SIGINT)
+            time.sleep(0.05)
+        status = process.wait(timeout=30)
+        seconds = time.perf_counter() - start
+    finally:
+        process.kill()
+    rest = process.stderr.read()
+    assert status == 130 and rest == f"jaxpg {command}: interrupted\n" and seconds < 2, rest
+    assert [p.name for p in out.iterdir()] == ["metrics.json"]
+    assert (out / "metrics.json").read_text() == "earlier"
+    assert [p.name for p in tmp_path.iterdir() if "staging" in p.name] == []
+
+
+def test_the_last_10_mean_of_a_seed_is_the_same_in_a_sweep_and_alone(tmp_path):
+    args = ["--iterations", "12", "--episodes", "3", "--max-steps", "20", "--quiet", "--no-cache"]
+    assert cli.main(["train", *args, "--seed", "3", "--out", str(tmp_path / "alone")]) == 0
+    assert cli.main(["sweep", *args, "--seeds", "4", "--out", str(tmp_path / "sweep")]) == 0
+    alone = json.loads((tmp_path / "alone/metrics.json").read_text())["last_10_mean_return"]
+    rows = (tmp_path / "sweep/runs.csv").read_text().splitlines()
+    column = rows[0].split(",").index("last_10_mean_return")
+    assert rows[1 + 3].split(",")[column] == repr(alone)  # seed 3: the same number, to the bit
+
+
+def test_divergence_is_reported_with_its_first_iteration(tmp_path):
+    args = [*SMALL, "--lr", "1e30", "--optimizer", "sgd"]
+    with pytest.warns(RuntimeWarning, match="diverged: .* from iteration 1 on"):
+        assert cli.main(["train", *args, "--out", str(tmp_path / "run")]) == 0
+    assert json.loads((tmp_path / "run/metrics.json").read_text())[
+        "first_nonfinite_iteration"] == 1
+    with pytest.warns(RuntimeWarning, match="diverged"):
+        assert cli.main(["sweep", *args, "--seeds", "2", "--out", str(tmp_path / "sweep")]) == 0
+    rows = [row.split(",") for row in (tmp_path / "sweep/runs.csv").read_text().splitlines()]
+    column = rows[0].index("first_nonfinite_iteration")
+    assert [row[column] for row in rows[1:]] == ["1", "-1"]  # seed 1's stayed finite
+
+
+def test_the_command_warns_in_one_line_and_once_of_an_unreadable_compilation_cache(capsys):
+    """JAX warns of every entry of a damaged cache (21 for `reproduce`, two lines each)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = cli._show_warning
+        for name in ("jit_add", "jit_scan", "jit_where"):
+            warnings.warn(f"Error reading persistent compilation cache entry for '{name}': "
+                          f"error: Error -3 while decompressing data: incorrect header check")
+        warnings.warn("something else", RuntimeWarning)
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2 and "unreadable entries" in lines[0] and "'jit_add'" in lines[0]
+    assert lines[1] == "jaxpg: warning: something else"

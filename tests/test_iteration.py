@@ -148,6 +148,8 @@ class _Wrong(nn.Module):
     ({"loss": lambda params, apply_fn, batch, hyper: (0.0, {"m": jnp.zeros(3)})},
      "loss: must return"),
     ({"optimizer": lambda lr: "adam"}, "optimizer: the function must return an optax"),
+    ({"optimizer": lambda lr: optax.lbfgs(lr)}, "optimizer: the function's optimizer asks for "
+                                                "more than the gradient"),
     ({"policy": "mlp"}, "policy: expected None or a flax.linen.Module"),
 ])
 def test_bad_parts_are_named_before_anything_compiles(changes, match):
@@ -161,5 +163,6 @@ def test_a_loss_that_becomes_nan_is_reported_with_its_first_iteration():
         loss, metrics = losses.reinforce(params, apply_fn, batch, hyper)
         return loss + jnp.log(hyper.learning_rate - 0.02), metrics  # NaN at lr 0.01
 
-    with pytest.warns(RuntimeWarning, match="loss: not finite from iteration 0 on"):
+    with pytest.warns(RuntimeWarning, match="diverged: the loss or its gradient is not finite "
+                                            "from iteration 0 on"):
         train(dataclasses.replace(SMALL, loss=exploding), show_progress=False)

@@ -3,7 +3,6 @@
 
 import chex
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -16,6 +15,7 @@ from jaxpg import (
     schedule,
     train,
 )
+from jaxpg.iteration import Metrics
 
 
 @pytest.fixture(scope="module")
@@ -64,3 +64,12 @@ def test_run_keys_are_jax_prng_keys():
     np.testing.assert_array_equal(reinforce.run_keys(seeds),
                                   np.stack([jax.random.PRNGKey(s) for s in seeds]))
     assert reinforce.run_keys(seeds).dtype == np.uint32
+
+
+def test_the_first_iteration_of_a_non_finite_loss_or_gradient_is_found_per_run():
+    loss = np.array([[1.0, np.nan, 2.0, 3.0], [1.0, 2.0, 3.0, 4.0], [1.0, 2.0, 3.0, np.inf]])
+    grad_norm = np.array([[1.0, 1.0, 1.0, 1.0], [1.0, 1.0, np.inf, 1.0], [1.0, 1.0, 1.0, 1.0]])
+    metrics = Metrics(loss, loss, loss, loss, loss, grad_norm)
+    np.testing.assert_array_equal(reinforce.first_nonfinite(metrics), [1, 2, 3])
+    finite = metrics._replace(loss=np.ones(4), grad_norm=np.ones(4))
+    assert reinforce.first_nonfinite(finite) == -1

@@ -131,6 +131,10 @@ def test_save_animation_writes_mp4_when_available(tmp_path):
 def test_save_animation_rejects_bad_arguments(tmp_path):
     with pytest.raises(ValueError, match="path"):
         render.save_animation(_frames(), tmp_path / "episode.avi")
+    with pytest.raises(ValueError, match="^path: cannot write in /proc"):
+        render.save_animation(_frames(), "/proc/episode.gif")
+    with pytest.raises(ValueError, match="^out: cannot write in .*missing"):
+        render.check_animation_path(tmp_path / "missing" / "episode.gif", "out")
     with pytest.raises(ValueError, match="frames"):
         render.save_animation(_frames().astype(np.float32), tmp_path / "episode.gif")
     with pytest.raises(ValueError, match="fps"):

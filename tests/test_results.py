@@ -188,3 +188,11 @@ def test_a_folder_reached_through_a_link_is_replaced_where_it_is(tmp_path):
     _write(link, NEW)
     assert link.is_symlink() and pathlib.Path(os.readlink(link)) == target
     assert _files(target) == NEW
+
+
+@pytest.mark.parametrize("folder", ["/proc/run", "/proc/x/y"])
+def test_a_folder_that_cannot_be_written_is_refused_when_claimed(folder):
+    with pytest.raises(ValueError, match="^out: cannot write in /proc"):
+        results.claim(folder)
+    with pytest.raises(ValueError, match="^path: cannot write in /proc"):
+        results.check_writable("/proc", "path")

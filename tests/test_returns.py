@@ -2,6 +2,7 @@
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from jaxpg import discount_and_normalize_rewards, discount_rewards, returns
 
@@ -53,3 +54,17 @@ def test_normalize_uses_alive_steps_and_population_std():
 def test_normalize_is_safe_when_std_is_zero():
     got = returns.normalize_masked(jnp.full((4, 3), 7.0), jnp.ones((4, 3), bool))
     assert np.all(np.isfinite(got)) and np.all(np.asarray(got) == 0)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: discount_rewards([], 0.9), "rewards: every episode needs at least one reward"),
+    (lambda: discount_rewards([1.0, 2.0], 1.5), r"discount_rate: must be a number in \[0, 1\]"),
+    (lambda: discount_rewards([1.0, 2.0], float("nan")), "discount_rate"),
+    (lambda: discount_rewards([1.0, 2.0], [0.9, 0.8]), "discount_rate"),
+    (lambda: discount_and_normalize_rewards([], 0.9), "all_rewards: expected at least one"),
+    (lambda: discount_and_normalize_rewards([[1.0], []], 0.9), "rewards: every episode"),
+    (lambda: discount_and_normalize_rewards([[1.0]], -0.1), "discount_rate"),
+])
+def test_bad_input_raises_one_line(call, match):
+    with pytest.raises(ValueError, match=f"^{match}"):
+        call()

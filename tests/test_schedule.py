@@ -1,6 +1,9 @@
 """Host scheduling: blocks of runs on threads train every run as it trains alone."""
 
 
+import threading
+import time
+
 import jax
 import numpy as np
 import pytest
@@ -95,3 +98,34 @@ def test_a_failing_run_raises_instead_of_hanging():
     with pytest.raises(RuntimeError, match="device lost"):
         schedule.run(program._replace(iterate=Failing()), config.iterations,
                       [(reinforce.run_keys(np.arange(300)), hyperparams)], lambda *_: None)
+
+
+@pytest.mark.parametrize("interruption", [KeyboardInterrupt, RuntimeError])
+def test_an_interrupted_caller_stops_every_worker_at_its_next_call(interruption):
+    """Ctrl-C (KeyboardInterrupt) while the runs train, or the hook's error: `run` raises it once
+    the workers have stopped, each before its next program call, not when training ends."""
+    config = TrainConfig(iterations=1000, episodes=2, max_steps=10)
+    program = programs.compiled_program(config)
+    calls = []
+
+    class Counted:  # the program's iteration, counting its calls
+        def prepare(self, *args):
+            return program.iterate.prepare(*args)
+
+        def __call__(self, *args):
+            calls.append(threading.get_ident())
+            return program.iterate(*args)
+
+    def interrupt(iteration, metrics):
+        if iteration == 0:
+            raise interruption
+
+    num_runs = 3 * schedule.CPU_BLOCK  # blocks on every thread
+    with pytest.raises(interruption):
+        schedule.run(program._replace(iterate=Counted()), config.iterations,
+                     [(reinforce.run_keys(np.arange(num_runs)), config.hyperparams.per_run(
+                         num_runs))], interrupt)
+    stopped = len(calls)  # 7 to 36 seen, of 4 blocks x 100 calls
+    assert stopped < len(schedule.calls(config.iterations))
+    time.sleep(0.2)
+    assert len(calls) == stopped  # no worker still calls

@@ -111,12 +111,17 @@ def test_summary_statistics():
     (dict(seeds=[]), "seeds"),
     (dict(seeds=[1, 1]), "seeds"),
     (dict(seeds=[-1]), "seeds"),
+    (dict(seeds=5), "seeds: must be a non-empty sequence"),
+    (dict(seeds=range(2**33)), "seeds: must be a non-empty sequence"),  # checked by its bounds
+    (dict(seeds=range(2**32)), "memory: training 4294967296 seeds"),  # before making its array
+    (dict(grid={"learning_rate": ["0.01"]}), "learning_rate: must be a number"),
     (dict(grid={"lr": [0.1]}), "grid"),
     (dict(grid={"discount": [0.0]}), "discount"),
     (dict(grid={"learning_rate": [-1.0]}), "learning_rate"),
     (dict(memory_budget=0), "memory_budget"),
     (dict(memory_budget=2.5e9), "memory_budget"),
     (dict(memory_budget="2G"), "memory_budget"),
+    (dict(memory_budget=2**80), "memory_budget: .* is more than this machine has"),
 ])
 def test_bad_sweeps_are_rejected(kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -188,3 +193,17 @@ def test_domain_randomisation_trains_and_bad_ranges_are_named():
                           ({"masspole": (0.0, 1.0)}, "masspole: must be positive")]:
         with pytest.raises(ValueError, match=match):
             TrainConfig(randomize=ranges)
+
+
+def test_held_out_episodes_are_each_runs_own_alike_alone_and_in_a_sweep():
+    config = dataclasses.replace(PHYSICS_CONFIG, iterations=5)
+    many = sweep(config, seeds=range(6), grid={"learning_rate": [0.01, 0.03]}, eval_episodes=7,
+                 show_progress=False)
+    assert many.eval_returns.shape == many.eval_greedy_returns.shape == (2, 6, 7)
+    few = sweep(config, seeds=range(2), eval_episodes=7, show_progress=False)  # runs alone
+    np.testing.assert_array_equal(few.eval_returns[0], many.eval_returns[0, :2])
+    np.testing.assert_array_equal(few.eval_greedy_returns[0], many.eval_greedy_returns[0, :2])
+    assert not np.array_equal(many.eval_returns[0, 0], many.eval_returns[0, 1])  # own episodes
+    assert sweep(config, seeds=range(2), show_progress=False).eval_returns is None
+    with pytest.raises(ValueError, match="eval_episodes: must be an integer"):
+        sweep(config, seeds=range(2), eval_episodes=-1, show_progress=False)
