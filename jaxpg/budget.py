@@ -1,0 +1,123 @@
+"""What training needs in memory, estimated from its settings alone, before anything is traced or
+allocated: settings far beyond the machine end in one line, not in a crash or a hang.
+
+The estimate (`needed_bytes`) is a host's, in floats of JAX's default dtype:
+
+- each step of each episode that a run plays: `STEP_FLOATS`, plus `UNIT_FLOATS` per hidden unit of
+  the default network (and of a loss's critic): its record, the loss's values and every layer's
+  activations with their gradients, as XLA lays out one iteration;
+- the parameters of every run, with their gradient and optimizer state: `PARAMETER_COPIES` floats
+  each;
+- the metrics of every run, `METRIC_FLOATS` per iteration, and `CALL_BYTES` of bookkeeping for
+  each program call of each block of runs (`schedule.run`).
+
+Steps count for the runs that train at once on a CPU, one block of runs per core
+(`schedule.cpu_blocks`); parameters and metrics for every run. A user's own module adds what this
+cannot see without tracing it, as does the device memory of an accelerator, which a sweep's
+`memory_budget` bounds by XLA's own account (`sweep.fitting_chunk_size`).
+"""
+
+import decimal
+import os
+
+import jax
+import numpy as np
+
+from jaxpg import losses, policies, rollout, schedule
+from jaxpg.programs import ITERATIONS_PER_CALL
+
+# Per step of an episode: XLA's buffers for one iteration of one run came to 15 + 4 * units floats
+# (35.3 for the book's 5 units, 272 for 64; 1000 episodes of 200 steps, `memory_analysis()`).
+STEP_FLOATS = 15
+UNIT_FLOATS = 4
+PARAMETER_COPIES = 5  # the parameters, their gradient, two moments and the trained copy returned
+METRIC_FLOATS = 16  # six metrics and up to two of a loss's own, kept twice (trained, returned)
+CALL_BYTES = 6000  # a run alone's 300000 iterations took 600 bytes each, 10 to a call
+USABLE_SHARE = 0.8  # of the machine's memory: the process and the system need the rest
+
+
+def machine_memory():
+    """Bytes of physical memory (`os.sysconf`); None where the system does not say."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def needed_bytes(config, runs=1):
+    """Estimated bytes of memory that training `runs` runs of `config` needs (module docstring).
+
+    Args:
+      config: the `TrainConfig`.
+      runs: how many runs train, in one chunk.
+
+    Returns:
+      An int; it grows with iterations, episodes, max_steps, hidden units and runs.
+    """
+    itemsize = np.dtype(jax.dtypes.canonicalize_dtype(float)).itemsize
+    cores = schedule.usable_cores()
+    alone = runs <= schedule.ALONE_PER_CORE * cores
+    # A run alone plays whole vectors of episodes (`rollout.LANES`); a block, its runs side by side.
+    episodes = -(-config.episodes // rollout.LANES) * rollout.LANES if alone else config.episodes
+    at_once = min(runs, cores if alone else cores * schedule.CPU_BLOCK)
+    blocks = runs if alone else -(-runs // schedule.CPU_BLOCK)
+    networks = [config.network, losses.critic(config.loss)]
+    units = sum(sum(net.hidden) for net in networks if isinstance(net, policies.PolicyNetwork))
+    parameters = sum(_parameters(net) for net in networks)
+    steps = config.max_steps * episodes * (STEP_FLOATS + UNIT_FLOATS * units)
+    kept = PARAMETER_COPIES * parameters + METRIC_FLOATS * config.iterations
+    calls = -(-config.iterations // ITERATIONS_PER_CALL)
+    return (at_once * steps + runs * kept) * itemsize + blocks * calls * CALL_BYTES
+
+
+def _parameters(network):
+    """How many parameters a `policies.PolicyNetwork` has; 0 for any other module or None."""
+    if not isinstance(network, policies.PolicyNetwork):
+        return 0
+    sizes = [4, *network.hidden, 1]
+    return sum((inputs + 1) * outputs for inputs, outputs in zip(sizes[:-1], sizes[1:]))
+
+
+def check(config, runs=1, what="1 run"):
+    """Raises a ValueError, in one line, when training `runs` runs of `config` needs more memory
+    (`needed_bytes`) than `USABLE_SHARE` of the machine's.
+
+    Args:
+      config: the `TrainConfig`.
+      runs: how many runs train, in one chunk.
+      what: how the message names the runs, such as "64 seeds x 2 settings".
+    """
+    have = machine_memory()
+    needed = needed_bytes(config, runs)
+    if have is not None and needed > USABLE_SHARE * have:
+        network = "" if config.policy is not None else f", hidden {config.hidden}"
+        raise ValueError(
+            f"memory: training {what} for {config.iterations} iterations of {config.episodes} "
+            f"episodes of at most {config.max_steps} steps{network} needs about "
+            f"{format_bytes(needed)}; this machine has {format_bytes(have)}, of which training "
+            f"may use {USABLE_SHARE:.0%}")
+
+
+def check_memory_budget(memory_budget):
+    """Raises a ValueError unless `memory_budget` is None or a positive integer number of bytes
+    within the machine's memory."""
+    if memory_budget is None:
+        return
+    is_int = isinstance(memory_budget, int | np.integer) and not isinstance(memory_budget, bool)
+    if not is_int or memory_budget < 1:
+        raise ValueError(f"memory_budget: must be None or a positive integer number of bytes, "
+                         f"got {memory_budget!r}")
+    have = machine_memory()
+    if have is not None and memory_budget > have:
+        raise ValueError(f"memory_budget: {format_bytes(memory_budget)} is more than this "
+                         f"machine has ({format_bytes(have)}); allowed: 1 byte to "
+                         f"{format_bytes(have)}, or none")
+
+
+def format_bytes(count):
+    """`count` bytes in the largest binary unit up to EiB that keeps a number of at least 1, to
+    four digits: `23.52 GiB`; exactly, for numbers of any size (a float would overflow)."""
+    count = int(count)
+    units = ["bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"]
+    power = min(max(count.bit_length() - 1, 0) // 10, len(units) - 1)
+    return f"{decimal.Decimal(count) / 1024**power:.4g} {units[power]}"
