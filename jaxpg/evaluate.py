@@ -147,9 +147,10 @@ def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, bac
         returns = _gymnasium_returns(policy, episodes, max_steps, env_params, env_id, seed)
     else:
         init_state = None if init_states is None else _init_state(init_states, episodes)
-        returns = _jaxpg_returns(
+        returns, invalid = _jaxpg_returns(
             jax.random.PRNGKey(seed), env_params, init_state, _as_argument(policy), episodes,
             max_steps)
+        rollout.check_played_actions(invalid)
     return summarize(returns)
 
 
@@ -195,7 +196,8 @@ def reset_states(key, episodes, env_params):
 def _jaxpg_returns(key, env_params, init_state, policy, episodes, max_steps):
     if init_state is None:
         init_state = reset_states(key, episodes, env_params)
-    return rollout.rollout(key, policy, env_params, episodes, max_steps, init_state).returns
+    played = rollout.rollout(key, policy, env_params, episodes, max_steps, init_state)
+    return played.returns, played.invalid_action
 
 
 @jax.jit
@@ -344,10 +346,11 @@ def robustness(policies, env_grid=None, episodes=100, max_steps=200, seed=0, net
     physics = {name: np.asarray([getattr(env_params.replace(**setting), name)
                                  for setting in settings], jnp.result_type(float))
                for name in train_config.PHYSICS}
-    returns = _robustness_returns(
+    returns, invalid = _robustness_returns(
         jax.random.PRNGKey(seed),
         jax.tree.map(lambda leaf: leaf.reshape(-1, *leaf.shape[2:]), policy_params), physics,
         env_params, None if function else network, function, episodes, max_steps)
+    rollout.check_played_actions(invalid)
     return Robustness(np.asarray(returns, np.float64).reshape(*grid_shape, *returns.shape[1:]),
                       settings)
 
@@ -376,7 +379,8 @@ def _split_policies(policies, network):
 def _robustness_returns(key, policy_params, physics, env_params, network, function, episodes,
                         max_steps):
     """The returns `[N, P, E]` of N policies (parameters `[N, ...]` of `network`, or one
-    `function`) in P settings (`physics`: `[P]` values of each physical field)."""
+    `function`) in P settings (`physics`: `[P]` values of each physical field), and whether any
+    action was other than 0 or 1."""
     num_policies = 1 if function else jax.tree.leaves(policy_params)[0].shape[0]
     num_settings = len(next(iter(physics.values())))
     num_runs = num_policies * num_settings
@@ -394,11 +398,12 @@ def _robustness_returns(key, policy_params, physics, env_params, network, functi
         def policy(obs, u):  # every run draws evaluate's uniforms `[E]`
             return act(obs, jnp.broadcast_to(u[:, None], obs.shape[:-1]))
 
-        return rollout.rollout(key, policy, env_params.replace(**block_physics), episodes,
-                               max_steps, init_state).returns
+        played = rollout.rollout(key, policy, env_params.replace(**block_physics), episodes,
+                                 max_steps, init_state)
+        return played.returns, played.invalid_action
 
-    returns = jax.lax.map(play_block, (
+    returns, invalid = jax.lax.map(play_block, (
         jax.tree.map(lambda leaf: leaf[runs // num_settings], policy_params),
         jax.tree.map(lambda leaf: leaf[runs % num_settings], physics)))  # [blocks, E, BLOCK]
     returns = jnp.moveaxis(returns, 1, 2).reshape(num_blocks * BLOCK, episodes)[:num_runs]
-    return returns.reshape(num_policies, num_settings, episodes)
+    return returns.reshape(num_policies, num_settings, episodes), jnp.any(invalid)

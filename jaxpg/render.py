@@ -187,6 +187,7 @@ def render_episode(policy, seed=0, env_params=cartpole.V1, max_steps=500):
         raise ValueError(f"max_steps: must be a positive integer, got {max_steps!r}")
     # One step more than drawn, so that the state after the last drawn step is observed too.
     episodes = rollout.rollout(jax.random.PRNGKey(seed), policy, env_params, 1, max_steps + 1)
+    rollout.check_played_actions(episodes.invalid_action)
     length = min(int(episodes.lengths[0]), max_steps)
     states = np.asarray(episodes.transitions.obs[: length + 1, 0])
     return render_frame(states, env_params)

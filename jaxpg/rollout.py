@@ -35,6 +35,9 @@ class Episodes(NamedTuple):
     transitions: Transition
     returns: jax.Array  # [E] sum of rewards over the alive steps
     lengths: jax.Array  # [E] number of alive steps
+    # [] bool ([R] for R runs): whether the policy gave an action other than 0 or 1 on an alive
+    # step, which CartPole played as 0 (push left); a caller of a user's policy raises it.
+    invalid_action: jax.Array | None = None
 
 
 CHUNK = 20  # steps simulated between checks whether every episode has ended
@@ -117,7 +120,9 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
         u, t = step
         features, done = carry[:4], carry[4] != 0
         state = cartpole.CartPoleState(*features, time=init_state.time + t)
-        action = policy(jnp.moveaxis(features, 0, -1), u)
+        obs = jnp.moveaxis(features, 0, -1)
+        action = policy(obs, u)
+        check_actions(action, obs)
         _, next_state, reward, terminated, truncated = cartpole.step(state, action, env_params)
         alive = ~done
         record = _record(features, action, jnp.where(alive, reward, 0.0), alive)
@@ -147,7 +152,28 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
     # call keeps XLA from compiling the training iteration around it into one function
     # (`jaxpg.flags`).
     returns, alive_steps = records[:, 5:7].astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
-    return Episodes(_transitions(records), returns.astype(records.dtype), alive_steps)
+    action, alive = records[:, 4], records[:, 6] != 0
+    invalid = jnp.any(alive & (action != 0) & (action != 1), axis=(0, 1))
+    return Episodes(_transitions(records), returns.astype(records.dtype), alive_steps, invalid)
+
+
+def check_actions(action, obs):
+    """Raises a ValueError, as the rollout is traced, unless `action` holds one integer (or bool)
+    action per observation of `obs` `[..., 4]`: 0 pushes left, 1 right."""
+    dtype = jnp.result_type(action)
+    if jnp.shape(action) != obs.shape[:-1] or not (
+            jnp.issubdtype(dtype, jnp.integer) or dtype == jnp.bool_):
+        raise ValueError(f"policy: must return one integer action per observation, shaped "
+                         f"{obs.shape[:-1]} (0 pushes left, 1 right), got {dtype} "
+                         f"{jnp.shape(action)}")
+
+
+def check_played_actions(invalid_action):
+    """Raises a ValueError where a rollout's policy gave an action other than 0 or 1 (any of
+    `Episodes.invalid_action`), which CartPole played as 0."""
+    if np.any(invalid_action):
+        raise ValueError("policy: returned an action other than 0 (push left) or 1 (push right), "
+                         "which CartPole played as 0")
 
 
 class StreamState(NamedTuple):

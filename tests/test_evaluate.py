@@ -5,6 +5,7 @@ import math
 
 import flax.linen as nn
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.stats
@@ -225,3 +226,29 @@ def test_bad_robustness_arguments_raise_one_line_before_compiling(kwargs, match)
     with xla_compiles() as compiled, pytest.raises(ValueError, match=f"^{match}") as error:
         robustness(**kwargs)
     assert "\n" not in str(error.value) and not any("robustness" in name for name in compiled)
+
+
+def _always(action):
+    """A policy that plays `action` everywhere, of the dtype JAX gives it."""
+    return lambda obs, u: jnp.full(obs.shape[:-1], action)
+
+
+PLAYED_AS_0 = "policy: returned an action other than 0 (push left) or 1 (push right), which "
+NO_ACTION = "policy: must return one integer action per observation, shaped "
+
+
+@pytest.mark.parametrize("policy, message", [
+    (_always(2), PLAYED_AS_0),  # found by the program, raised after the rollout
+    (_always(-1), PLAYED_AS_0),
+    (_always(0.5), NO_ACTION + "(10,) (0 pushes left, 1 right), got float32 (10,)"),  # as traced
+    (lambda obs, u: obs, NO_ACTION + "(10,) (0 pushes left, 1 right), got float32 (10, 4)"),
+])
+def test_actions_other_than_0_or_1_are_refused_not_played_as_0(policy, message):
+    with pytest.raises(ValueError) as error:
+        evaluate(policy, episodes=10, max_steps=20)
+    assert str(error.value).startswith(message) and "\n" not in str(error.value)
+    with pytest.raises(ValueError) as error:
+        robustness(policy, {"length": [0.5, 1.0]}, episodes=3, max_steps=10)
+    assert str(error.value).startswith(message[:40])
+    assert evaluate(lambda obs, u: obs[:, 2] > 0, episodes=10, max_steps=20).mean == (
+        evaluate(basic_policy, episodes=10, max_steps=20).mean)  # bools are actions too

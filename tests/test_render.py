@@ -139,3 +139,8 @@ def test_save_animation_rejects_bad_arguments(tmp_path):
         render.save_animation(_frames().astype(np.float32), tmp_path / "episode.gif")
     with pytest.raises(ValueError, match="fps"):
         render.save_animation(_frames(), tmp_path / "episode.gif", fps=0)
+
+
+def test_an_episode_of_actions_other_than_0_or_1_is_refused():
+    with pytest.raises(ValueError, match="^policy: returned an action other than 0"):
+        render.render_episode(lambda obs, u: jax.numpy.full(obs.shape[:-1], 2), max_steps=5)

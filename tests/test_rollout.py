@@ -199,3 +199,25 @@ def test_many_runs_at_once_play_as_each_run_alone():
         alone = rollout.rollout(key, policy, LIMITED, 4, 30)
         chex.assert_trees_all_equal(jax.tree.map(lambda leaf: leaf[:, :, r], together.transitions),
                                     alone.transitions)
+
+
+def test_a_policy_that_gives_no_action_of_each_observation_is_refused_as_traced():
+    key = jax.random.PRNGKey(0)
+    for policy, got in [(lambda obs, u: obs, r"float32 \(6, 4\)"),
+                        (lambda obs, u: u, r"float32 \(6,\)"),
+                        (lambda obs, u: jnp.zeros((), jnp.int32), r"int32 \(\)")]:
+        with pytest.raises(ValueError, match=r"^policy: must return one integer action per "
+                                             rf"observation, shaped \(6,\) .* got {got}"):
+            jax.jit(lambda key: rollout.rollout(key, policy, cartpole.V1, 6, 10).returns)(key)
+
+
+def test_an_action_other_than_0_or_1_is_flagged_per_run():
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+
+    def policy(obs, u):  # run 1 plays 2 on its first step, which CartPole plays as 0
+        first = jnp.all(obs == obs, axis=-1) & (jnp.arange(3) == 1)
+        return jnp.where(first & (u < 2), 2, basic_policy(obs))
+
+    episodes = jax.jit(lambda keys: rollout.rollout(keys, policy, cartpole.V1, 4, 10))(keys)
+    np.testing.assert_array_equal(episodes.invalid_action, [False, True, False])
+    assert not rollout.rollout(keys[0], basic_policy, cartpole.V1, 4, 10).invalid_action
