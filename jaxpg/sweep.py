@@ -1,4 +1,4 @@
-"""Many training runs at once: seeds times a grid of learning rates and discounts.
+"""Many training runs at once: seeds times a grid of hyperparameters and physics.
 
 Every run of a sweep trains in the same compiled program as `train` runs alone, beside the other
 runs on the last axis of every array; seed i of a sweep therefore trains exactly as
@@ -54,7 +54,7 @@ class SweepResult(NamedTuple):
     """Every run of a sweep, `[G, S, ...]`: grid settings by seeds."""
 
     seeds: np.ndarray  # [S]
-    grid: list  # G dicts {"learning_rate": ..., "discount": ...}
+    grid: list  # G dicts {"learning_rate": ..., "discount": ..., "entropy_coef": ..., physics}
     policy_params: dict  # leaves [G, S, ...]
     metrics: iteration.Metrics  # leaves [G, S, I]
     summary: Summary
@@ -184,8 +184,8 @@ def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_pr
     Args:
       config: the `TrainConfig` every run shares.
       seeds: a sequence (a range, list or array) of S distinct integers in [0, 2**32).
-      grid: optional `{"learning_rate": [...], "discount": [...], "entropy_coef": [...]}`; the
-        runs are its product.
+      grid: optional: a dict of `GRID_FIELDS` (hyperparameters and physical fields) to values,
+        whose product the settings are, or a list of settings (`expand_grid`).
       show_progress: print a line per iteration (per chunk, when there are several).
       memory_budget: optional bytes of memory one device may use for a chunk of runs (see
         `fitting_chunk_size`); None trains all runs in one chunk. A budget above the machine's
