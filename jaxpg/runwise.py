@@ -2,11 +2,12 @@
 
 `runwise(fn)` traces `fn` for one run and evaluates its jaxpr again, operation by operation, for R
 runs whose arrays carry a trailing run axis `[..., R]`, where XLA's CPU backend vectorises over
-them (`jax.vmap` moves that axis to the front of matrix products and reshapes, for which XLA calls
-a library per small product). On the way, the operations whose rounding depends on the shape of
-the whole array are written in a fixed order: sums (`reduce_sum`, and the contractions of matrix
-products) halve their numbers as `sums.invariant_sum` does. So a run rounds the same alone (no run
-axis) as beside any number of others, for any policy, loss or optimizer written in JAX.
+them (`jax.vmap` moves that axis to the front of matrix products and reshapes instead). On the way,
+the operations whose rounding depends on the shape of the whole array are written in a fixed
+order: sums (`reduce_sum`, and the contractions of matrix products) add a long axis one entry
+after another in a loop, a short one as a chain of additions or by halving (`sums.invariant_sum`).
+So a run rounds the same alone (no run axis) as beside any number of others, for any policy, loss
+or optimizer written in JAX.
 
 Each operation keeps its meaning: an operation without a rule here is evaluated by `jax.vmap`
 over the run axis (still exact, not necessarily in a fixed order). `fn` is traced once per shape
