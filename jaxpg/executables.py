@@ -73,8 +73,7 @@ def cache_home():
 def enable(directory=None):
     """Keeps the programs of every `Stored` function in `directory` from now on, unless the
     directory is another user's or others can write it (then with a warning, none): the next
-    process loads them rather than compiling. `train` and `sweep` of the same configs then start
-    in about 0.1 s; the `jaxpg` command does this for its own training.
+    process loads them rather than compiling; the `jaxpg` command does this for its own training.
 
     Args:
       directory: where; by default `cache_home()/jaxpg/programs`, where the command keeps its.
