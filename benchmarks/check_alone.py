@@ -7,7 +7,7 @@ with XLA's threads one per core as a sweep has them, and the seeds alone in a pr
 that gives XLA one thread, as `jaxpg train` does. At least `schedule.ALONE_PER_CORE + 1` seeds:
 fewer would train alone in the blocks' process too. It counts the seeds whose parameters or
 statistics differ in any bit (-0 and +0 differ too). Programs of one run and of several are
-compiled apart, and XLA can round them differently (see `jaxpg.flags`): the suite checks 21 seeds
+compiled apart, and XLA can round them differently (see `jaxpg.xla_options`): the suite checks 21 seeds
 (two blocks padded to 16), this script as many as asked.
 
     python benchmarks/check_alone.py                 # seeds 0 to 63; about 20 s
@@ -25,11 +25,10 @@ from pathlib import Path
 
 import jax
 import numpy as np
-
 from train_throughput import VARIANTS
 
-from jaxpg import flags, programs, schedule, train_config
-from jaxpg.sweep import check_seeds, expand_grid, run_inputs
+from jaxpg import programs, schedule, train_config, xla_options
+from jaxpg.sweeps import check_seeds, expand_grid, run_inputs
 
 
 def train(num_seeds, iterations, variant, seed=None):
@@ -40,7 +39,7 @@ def train(num_seeds, iterations, variant, seed=None):
     inputs = run_inputs(config, check_seeds(range(num_seeds)), expand_grid(config, None))
     if seed is not None:
         inputs = jax.tree.map(lambda x: x[seed:seed + 1], inputs)
-    (result,) = schedule.run(programs.compiled_program(config), iterations, [inputs])
+    (result,) = schedule.train_blocks(programs.compiled_program(config), iterations, [inputs])
     leaves, _ = jax.tree_util.tree_flatten_with_path(result)
     return {jax.tree_util.keystr(path): np.asarray(leaf) for path, leaf in leaves}
 
@@ -48,7 +47,7 @@ def train(num_seeds, iterations, variant, seed=None):
 def train_alone(num_seeds, iterations, variant, path):
     """Trains each seed alone, as `jaxpg train` would, and saves its leaves in `path` as
     `f"{seed} {leaf's path}"`."""
-    flags.configure_xla(runs=1)  # before JAX starts its backends
+    xla_options.configure_xla(runs=1)  # before JAX starts its backends
     np.savez(path, **{f"{seed} {name}": leaf[0] for seed in range(num_seeds)
                       for name, leaf in train(num_seeds, iterations, variant, seed).items()})
 
@@ -65,7 +64,7 @@ def differing_seeds(num_seeds, iterations, variant):
             sys.exit(f"training the seeds alone failed (status {child.returncode})")
         with np.load(path) as saved:
             alone = dict(saved)
-    flags.configure_xla()  # before JAX starts its backends, as a sweep of many runs
+    xla_options.configure_xla()  # before JAX starts its backends, as a sweep of many runs
     schedule.usable_cores = lambda: 1  # one thread trains the blocks: none of the seeds alone
     together = train(num_seeds, iterations, variant)
     other_params, any_difference, leaves = [], [], set()

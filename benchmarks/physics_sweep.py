@@ -15,7 +15,7 @@ import time
 
 import common
 
-from jaxpg import flags
+from jaxpg import xla_options
 
 LENGTHS = [0.25, 0.4, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8]
 
@@ -43,7 +43,7 @@ def main():
     parser.add_argument("--iterations", type=int, default=150)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    flags.configure_xla()  # before JAX starts: as the command for many runs
+    xla_options.configure_xla()  # before JAX starts: as the command for many runs
     from jaxpg import TrainConfig
 
     config = TrainConfig(iterations=args.iterations)

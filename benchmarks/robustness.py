@@ -1,9 +1,9 @@
-"""Many trained policies in many physics settings: `jaxpg.evaluate.robustness` against its peers.
+"""Many trained policies in many physics settings: `jaxpg.evaluation.robustness` against its peers.
 
 The policies are a sweep's (`--policies` seeds of `TrainConfig()`, trained untimed first); the
 settings are the product of `--lengths` and `--masspoles`; every policy plays `--episodes` episodes
 of at most `--max-steps` steps in every setting. Three ways, in this process, under the `jaxpg`
-command's XLA setting (`jaxpg.flags.configure_xla`):
+command's XLA setting (`jaxpg.xla_options.configure_xla`):
 
 - robustness: `robustness(...)`, one compiled program for every policy and setting; its first call
   (tracing, compiling and one run) is timed apart from the warm calls that follow (median of
@@ -27,16 +27,16 @@ import time
 
 import common
 
-from jaxpg import flags
+from jaxpg import xla_options
 
-flags.configure_xla()  # before JAX starts: the setting of the `jaxpg` command
+xla_options.configure_xla()  # before JAX starts: the setting of the `jaxpg` command
 
 import jax
 import numpy as np
 
 from jaxpg import TrainConfig, cartpole, policies, rollout
-from jaxpg.evaluate import evaluate, robustness
-from jaxpg.sweep import sweep
+from jaxpg.evaluation import evaluate, robustness
+from jaxpg.sweeps import sweep
 
 
 def floats(text):

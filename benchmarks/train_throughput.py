@@ -1,7 +1,7 @@
 """Compile time, run time and environment steps per second of REINFORCE training, jaxpg vs numpy.
 
 jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) at once with
-`schedule.run`, whose compiled program runs ten iterations a call; compiling its two programs
+`schedule.train_blocks`, whose compiled program runs ten iterations a call; compiling its two programs
 (`init` and `iterate`, for each size of block of runs that `run` trains: `schedule.part_blocks`,
 as `run` compiles them: `schedule.prepare`) is timed apart from the runs, which follow one
 untimed warm-up run. The
@@ -18,9 +18,9 @@ Step counts:
   there too; its step signals are computed for all steps at once.
 
 Each R is measured in a process of its own, started afresh, with the XLA setting that the `jaxpg`
-command has for R runs (`jaxpg.flags.configure_xla(runs=R)`: one thread for XLA's CPU client for
+command has for R runs (`jaxpg.xla_options.configure_xla(runs=R)`: one thread for XLA's CPU client for
 one run), unless XLA_FLAGS already passes backend options or PJRT_NPROC (or NPROC) is set; XLA's
-own defaults are measured with `XLA_FLAGS` set to `jaxpg.flags.XLA_DEFAULTS`. Its compile time is
+own defaults are measured with `XLA_FLAGS` set to `jaxpg.xla_options.XLA_DEFAULTS`. Its compile time is
 therefore that of a cold process, and its peak RSS that process's peak. The numpy trainer runs in
 the script's own process, whose peak the file's top-level `peak_rss_mib` is.
 
@@ -41,8 +41,8 @@ import common
 import flax.linen as nn
 import numpy as np
 
-from jaxpg import flags, programs, rollout, schedule, train_config
-from jaxpg.sweep import check_seeds, expand_grid, run_inputs
+from jaxpg import programs, rollout, schedule, train_config, xla_options
+from jaxpg.sweeps import check_seeds, expand_grid, run_inputs
 
 
 def step_counts(config, num_runs, mean_lengths):
@@ -65,7 +65,7 @@ def skipped_fraction(config, max_lengths):
 
 
 def compile_programs(program, blocks):
-    """Compiles `program` for `blocks` as `schedule.run` does (`schedule.prepare`), timed.
+    """Compiles `program` for `blocks` as `schedule.train_blocks` does (`schedule.prepare`), timed.
 
     Returns:
       {"lower_s": until every program is traced and lowered, "compile_s": then until every one is
@@ -114,15 +114,15 @@ ROW = "row: "  # the line of a row's process that holds its measurements, as JSO
 
 def measure_row(config, num_runs, repeats, variant="builtin"):
     """Compiles the training of `num_runs` seeds, runs it once, then times `repeats` runs."""
-    flags.configure_xla(runs=num_runs)  # before JAX starts its backends
+    xla_options.configure_xla(runs=num_runs)  # before JAX starts its backends
     # Seeds 0..R-1 under the config's own settings, passed as a sweep passes them.
     keys, hyperparams = run_inputs(config, check_seeds(range(num_runs)), expand_grid(config, None))
     program = programs.compiled_program(config)
     parts = [(keys, hyperparams)]
     times = compile_programs(program, [block for block, _ in schedule.part_blocks(parts[0])])
-    schedule.run(program, config.iterations, parts)  # warm-up
+    schedule.train_blocks(program, config.iterations, parts)  # warm-up
     timing, (result,) = common.time_calls(
-        schedule.run, program, config.iterations, parts, repeats=repeats
+        schedule.train_blocks, program, config.iterations, parts, repeats=repeats
     )
     metrics = result.metrics
     simulated, padded = step_counts(config, num_runs, np.asarray(metrics.mean_length))
@@ -132,7 +132,7 @@ def measure_row(config, num_runs, repeats, variant="builtin"):
     return _row(impl, num_runs, config.iterations, timing["median_s"], simulated, padded,
                 np.mean(np.asarray(metrics.mean_return)[:, -1]),
                 times_s=timing["times_s"], skipped_fraction=skipped,
-                xla_cpu_threads=next((os.environ[name] for name in flags.THREADS
+                xla_cpu_threads=next((os.environ[name] for name in xla_options.THREADS
                                       if os.environ.get(name)), "one per core"), **times)
 
 
@@ -208,7 +208,7 @@ def main():
         config = dataclasses.replace(config, **VARIANTS[variant])
         print(ROW + json.dumps(measure_row(config, args.row, repeats(args, args.row), variant)))
         return
-    flags.configure_xla()  # the rows' processes inherit it; each adds its own threads
+    xla_options.configure_xla()  # the rows' processes inherit it; each adds its own threads
     book_iterations = config.iterations if args.book_iterations is None else args.book_iterations
     common.print_header(f"REINFORCE training throughput: {config}")
 

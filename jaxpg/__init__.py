@@ -1,32 +1,34 @@
-"""jaxpg: policy-gradient reinforcement learning on CartPole, exact and fast, in JAX.
-
-`jaxpg.sweep` and `jaxpg.evaluate` name the functions; import from their modules with
-`from jaxpg.sweep import ...` and `from jaxpg.evaluate import ...`.
-"""
+"""jaxpg: policy-gradient reinforcement learning on CartPole, exact and fast, in JAX."""
 
 __version__ = "0.1.0"
 
-from jaxpg import cartpole, gym
-from jaxpg.evaluate import evaluate
-from jaxpg.executables import enable as keep_programs
+from jaxpg import cartpole, gym, losses
+from jaxpg.evaluation import EvalResult, evaluate, robustness
+from jaxpg.executables import keep_programs
+from jaxpg.iteration import Metrics, TrainResult
 from jaxpg.policies import basic_policy
-from jaxpg.iteration import TrainResult
 from jaxpg.reinforce import train
-from jaxpg.train_config import TrainConfig
 from jaxpg.returns import discount_and_normalize_rewards, discount_rewards
-from jaxpg.sweep import sweep
+from jaxpg.sweeps import SweepResult, sweep
+from jaxpg.train_config import Hyperparams, TrainConfig
 
 gym.register()
 
 __all__ = [
-    "cartpole",
-    "basic_policy",
-    "discount_rewards",
-    "discount_and_normalize_rewards",
-    "evaluate",
-    "keep_programs",
-    "sweep",
+    "EvalResult",
+    "Hyperparams",
+    "Metrics",
+    "SweepResult",
     "TrainConfig",
     "TrainResult",
+    "basic_policy",
+    "cartpole",
+    "discount_and_normalize_rewards",
+    "discount_rewards",
+    "evaluate",
+    "keep_programs",
+    "losses",
+    "robustness",
+    "sweep",
     "train",
 ]

@@ -9,12 +9,12 @@ The estimate (`needed_bytes`) is a host's, in floats of JAX's default dtype:
 - the parameters of every run, with their gradient and optimizer state: `PARAMETER_COPIES` floats
   each;
 - the metrics of every run, `METRIC_FLOATS` per iteration, and `CALL_BYTES` of bookkeeping for
-  each program call of each block of runs (`schedule.run`).
+  each program call of each block of runs (`schedule.train_blocks`).
 
 Steps count for the runs that train at once on a CPU, one block of runs per core
 (`schedule.cpu_blocks`); parameters and metrics for every run. A user's own module adds what this
 cannot see without tracing it, as does the device memory of an accelerator, which a sweep's
-`memory_budget` bounds by XLA's own account (`sweep.fitting_chunk_size`).
+`memory_budget` bounds by XLA's own account (`sweeps.fitting_chunk_size`).
 """
 
 import decimal
@@ -25,6 +25,7 @@ import numpy as np
 
 from jaxpg import losses, policies, rollout, schedule
 from jaxpg.programs import ITERATIONS_PER_CALL
+from jaxpg.validation import check_int
 
 # Per step of an episode: XLA's buffers for one iteration of one run came to 15 + 4 * units floats
 # (35.3 for the book's 5 units, 272 for 64; 1000 episodes of 200 steps, `memory_analysis()`).
@@ -103,10 +104,7 @@ def check_memory_budget(memory_budget):
     within the machine's memory."""
     if memory_budget is None:
         return
-    is_int = isinstance(memory_budget, int | np.integer) and not isinstance(memory_budget, bool)
-    if not is_int or memory_budget < 1:
-        raise ValueError(f"memory_budget: must be None or a positive integer number of bytes, "
-                         f"got {memory_budget!r}")
+    check_int("memory_budget", memory_budget)
     have = machine_memory()
     if have is not None and memory_budget > have:
         raise ValueError(f"memory_budget: {format_bytes(memory_budget)} is more than this "

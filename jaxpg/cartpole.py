@@ -11,6 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxpg.validation import check_choice
+
 INTEGRATORS = ("euler", "semi-implicit")
 
 
@@ -83,8 +85,7 @@ class CartPoleState:
 
 def make_params(env="CartPole-v1", **overrides):
     """A preset by name (`CartPole-v1` or `CartPole-v0`), with any field overridden, validated."""
-    if env not in PRESETS:
-        raise ValueError(f"env: unknown preset {env!r}; allowed: {', '.join(PRESETS)}")
+    check_choice("env", env, PRESETS, "preset")
     unknown = set(overrides) - set(CartPoleParams.__dataclass_fields__)
     if unknown:
         raise ValueError(f"env_params: unknown field(s) {', '.join(sorted(unknown))}")
@@ -108,10 +109,7 @@ def check_params(env_params):
     [1, MAX_STEPS_LIMIT), or reset bounds out of order. Values under a trace are skipped."""
     if not isinstance(env_params, CartPoleParams):
         raise ValueError(f"env_params: expected a CartPoleParams, got {type(env_params).__name__}")
-    if env_params.integrator not in INTEGRATORS:
-        raise ValueError(
-            f"integrator: must be one of {', '.join(INTEGRATORS)}, got {env_params.integrator!r}"
-        )
+    check_choice("integrator", env_params.integrator, INTEGRATORS)
     for name in _NUMBERS:
         value = _concrete(getattr(env_params, name))
         if value is not None and value.dtype.kind not in "iuf":

@@ -25,7 +25,7 @@ holding a msgpack map written by `flax.serialization.msgpack_serialize`:
 
 Any msgpack reader can open the file; flax's `msgpack_restore` turns the arrays back into numpy.
 
-It is written with `results.atomic_write`: a crash mid-write leaves the previous file intact.
+It is written with `atomic_files.atomic_write`: a crash mid-write leaves the previous file intact.
 """
 
 import dataclasses
@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from jaxpg import cartpole, iteration, policies, results, train_config
+from jaxpg import atomic_files, cartpole, iteration, policies, train_config
 
 FORMAT = "jaxpg-checkpoint"
 FORMAT_VERSION = 2  # the newest this reads; one run's file is still written as version 1
@@ -93,7 +93,7 @@ def save(path, policy_params, config, metrics=None, runs=None):
         **({} if runs is None else {"runs": runs}),
     }
     path.parent.mkdir(parents=True, exist_ok=True)
-    results.atomic_write(path, serialization.msgpack_serialize(payload))
+    atomic_files.atomic_write(path, serialization.msgpack_serialize(payload))
     return path
 
 

@@ -17,7 +17,7 @@ import warnings
 
 import numpy as np
 
-from jaxpg.evaluate import check_int
+from jaxpg.validation import check_int
 
 PROG = "jaxpg"
 BOOK_BASIC_POLICY = (41.698, 8.389445512070509, 24.0, 63.0)  # mean, std, min, max, as printed
@@ -147,14 +147,14 @@ def _enable_compilation_cache(disabled, whole_programs=False):
 
     cache = executables.cache_home() / "jaxpg"
     if whole_programs:
-        executables.enable(cache / "programs")
+        executables.keep_programs(cache / "programs")
         return
     import jax
 
-    from jaxpg import results
+    from jaxpg import atomic_files
 
     try:
-        results.private_directory(cache / "xla")
+        atomic_files.private_directory(cache / "xla")
     except OSError:
         pass  # JAX then keeps nothing there, and says so
     jax.config.update("jax_compilation_cache_dir", str(cache / "xla"))
@@ -225,9 +225,9 @@ def _load_policy(spec, run=None):
 
 
 def cmd_train(args):
-    from jaxpg import budget, checkpoint, plots, results
+    from jaxpg import atomic_files, budget, checkpoint, plots
     from jaxpg.reinforce import first_nonfinite, train
-    from jaxpg.sweep import last_mean
+    from jaxpg.sweeps import last_mean
 
     config = _config(args, learning_rate=args.lr, discount=args.discount,
                      entropy_coef=args.entropy_coef)
@@ -240,9 +240,9 @@ def cmd_train(args):
 
         config = dataclasses.replace(config, env=cartpole.make_params(
             args.env, **{name: given[0] for name, given in values.items()}))
-    check_int("seed", args.seed, 0)
+    check_int("seed", args.seed, 0, 2**32)
     budget.check(config)  # before anything is written, traced or allocated
-    out = results.claim(args.out)  # held until the results are in place: a second run is refused
+    out = atomic_files.claim(args.out)  # held until the results are in place: a second run is refused
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     result = train(config, seed=args.seed, show_progress=not args.quiet)
@@ -250,14 +250,14 @@ def cmd_train(args):
     metrics = {name: np.asarray(v) for name, v in result.metrics.columns().items()}
     final = float(last_mean(result.metrics.mean_return))
     diverged = int(first_nonfinite(result.metrics))  # train() has warned of it
-    with results.staged(out) as stage:
+    with atomic_files.staged(out) as stage:
         checkpoint.save(stage / checkpoint.FILENAME, result.policy_params, config, result.metrics)
         summary = {"seed": args.seed, "config": checkpoint.config_to_dict(config),
                    "last_10_mean_return": final, "seconds": seconds,
                    "first_nonfinite_iteration": diverged if diverged >= 0 else None,
                    "metrics": metrics}
-        results.write_json(stage / "metrics.json", summary)
-        results.write_csv(stage / "metrics.csv", {"iteration": np.arange(config.iterations), **metrics})
+        atomic_files.write_json(stage / "metrics.json", summary)
+        atomic_files.write_csv(stage / "metrics.csv", {"iteration": np.arange(config.iterations), **metrics})
         plots.learning_curve(result.metrics, stage / "learning_curve.png",
                              title=f"REINFORCE on {_env_name(config)}, seed {args.seed}")
     print(f"mean return over the last 10 iterations: {final:.1f} "
@@ -280,7 +280,7 @@ def _join_processes(args):
     host, _, port = args.coordinator.rpartition(":")
     if not host or not port.isdigit():
         raise ValueError(f"coordinator: expected HOST:PORT, got {args.coordinator!r}")
-    check_int("num_processes", args.num_processes, 1)
+    check_int("num_processes", args.num_processes)
     if not 0 <= args.process_id < args.num_processes:
         raise ValueError(f"process_id: must be in [0, {args.num_processes}), got {args.process_id}")
     import jax
@@ -293,12 +293,11 @@ def _join_processes(args):
 
 def cmd_sweep(args):
     writes_results = _join_processes(args)  # first: it must come before JAX computes anything
-    from jaxpg import checkpoint, plots, results
+    from jaxpg import atomic_files, checkpoint, plots
     from jaxpg.reinforce import first_nonfinite
-    from jaxpg.sweep import check_arguments, sweep
+    from jaxpg.sweeps import check_arguments, sweep
 
-    if args.seeds < 1:
-        raise ValueError(f"seeds: must be a positive integer, got {args.seeds}")
+    check_int("seeds", args.seeds)
     config = _config(args, learning_rate=args.lr[0], discount=args.discount[0],
                      entropy_coef=args.entropy_coef[0])
     grid = {"learning_rate": args.lr, "discount": args.discount, "entropy_coef": args.entropy_coef,
@@ -306,7 +305,7 @@ def cmd_sweep(args):
     # Before anything is written, traced or allocated.
     check_arguments(config, range(args.seeds), grid, args.memory_budget)
     from jaxpg import report  # after the checks: it imports scipy, in half a second
-    out = (results.claim if writes_results else results.check_out_dir)(args.out)
+    out = (atomic_files.claim if writes_results else atomic_files.check_out_dir)(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet,
@@ -316,12 +315,12 @@ def cmd_sweep(args):
         return
     s = swept.summary
     labels = [report.setting_label(g) for g in swept.grid]
-    with results.staged(out) as stage:
+    with atomic_files.staged(out) as stage:
         np.savez_compressed(stage / "metrics.npz", seeds=swept.seeds,
                             **{name: [g[name] for g in swept.grid] for name in swept.grid[0]},
                             **swept.metrics.columns(), **_held_out(swept))
         num_settings, num_seeds = s.final_return.shape
-        results.write_csv(stage / "runs.csv", {
+        atomic_files.write_csv(stage / "runs.csv", {
             **{name: np.repeat([g[name] for g in swept.grid], num_seeds) for name in swept.grid[0]},
             "seed": np.tile(swept.seeds, num_settings),
             "last_10_mean_return": s.final_return.ravel(),
@@ -330,7 +329,7 @@ def cmd_sweep(args):
             **{f"{name}_mean": returns.mean(axis=-1).ravel()
                for name, returns in _held_out(swept).items()},
         })
-        results.write_json(stage / "summary.json", {
+        atomic_files.write_json(stage / "summary.json", {
             "format": report.SWEEP_FORMAT,
             "config": checkpoint.config_to_dict(config), "seeds": args.seeds, "seconds": seconds,
             "grid": swept.grid, "fraction_solved": s.fraction_solved,
@@ -373,8 +372,8 @@ def cmd_compare(args):
 
 
 def cmd_evaluate(args):
-    from jaxpg import cartpole, results
-    from jaxpg.evaluate import evaluate, physics_label, physics_settings, robustness
+    from jaxpg import atomic_files, cartpole
+    from jaxpg.evaluation import evaluate, physics_label, physics_settings, robustness
 
     values = _physics_settings(args)[0]
     env_params = cartpole.make_params(args.env)
@@ -393,7 +392,7 @@ def cmd_evaluate(args):
         raise ValueError("backend: gymnasium plays one policy in one physics setting; several "
                          "policies, settings or --out are played in jaxpg")
     if args.out is not None:
-        results.check_out_dir(args.out)
+        atomic_files.check_out_dir(args.out)
     result = robustness(policies, values, episodes=args.episodes, max_steps=args.max_steps,
                         seed=args.seed, network=network, env=env_params)
     print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps in "
@@ -401,7 +400,7 @@ def cmd_evaluate(args):
     for label, returns in zip(result.labels, result.pooled):
         print(f"  {label}: {np.median(returns):g} ({returns.mean():.1f})")
     if args.out is not None:
-        with results.staged(args.out) as stage:
+        with atomic_files.staged(args.out) as stage:
             _write_robustness(stage, result, values, args)
         print(f"wrote {args.out}/: robustness.json, robustness.csv, robustness.png")
 
@@ -409,17 +408,17 @@ def cmd_evaluate(args):
 def _write_robustness(folder, result, values, args):
     """Writes `result` of `jaxpg evaluate` as robustness.json, robustness.csv (a row per policy
     and setting) and robustness.png (the median return per setting, `_median_table`)."""
-    from jaxpg import plots, results
+    from jaxpg import atomic_files, plots
 
     median = np.median(result.pooled, axis=1)
-    results.write_json(folder / "robustness.json", {
+    atomic_files.write_json(folder / "robustness.json", {
         "policy": args.policy, "run": args.run, "env": args.env, "episodes": args.episodes,
         "max_steps": args.max_steps, "seed": args.seed, "settings": result.settings,
         "median_per_setting": median, "mean_per_setting": result.pooled.mean(axis=1),
         "median": result.median, "mean": result.mean,  # [G, S, P]
     })
     cells = np.indices(result.mean.shape).reshape(3, -1)  # (g, s, p) of every cell, in order
-    results.write_csv(folder / "robustness.csv", {
+    atomic_files.write_csv(folder / "robustness.csv", {
         "g": cells[0], "s": cells[1],
         **{name: [result.settings[p][name] for p in cells[2]] for name in result.settings[0]},
         **{name: getattr(result, name).ravel() for name in ("mean", "median", "std", "min", "max")},
@@ -438,7 +437,7 @@ def _median_table(median, settings, values):
     Returns:
       (`[rows, columns]`, row labels, column labels, what the columns vary or None)
     """
-    from jaxpg.evaluate import physics_label
+    from jaxpg.evaluation import physics_label
 
     across = list(values)[-1] if values else None
     columns = values[across] if values else [None]
@@ -453,7 +452,7 @@ def cmd_render(args):
 
     render.check_animation_path(args.out, "out")
     policy, description = _load_policy(args.policy, args.run)
-    check_int("seed", args.seed, 0)
+    check_int("seed", args.seed, 0, 2**32)
     env_params = cartpole.make_params(args.env)
     frames = render.render_episode(policy, seed=args.seed, env_params=env_params, max_steps=args.max_steps)
     render.save_animation(frames, args.out)
@@ -463,19 +462,19 @@ def cmd_render(args):
 def cmd_conformance(args):
     from jaxpg import conformance
 
-    report = conformance.run(episodes=args.episodes, seed=args.seed)
+    report = conformance.compare_with_gymnasium(episodes=args.episodes, seed=args.seed)
     print(report.format())
     return 0 if report.ok else 1
 
 
 def cmd_reproduce(args):
     from jaxpg import policies, returns
-    from jaxpg.evaluate import evaluate, gymnasium_reset_states
-    from jaxpg.reinforce import check_seed, train
-    from jaxpg.sweep import last_mean
+    from jaxpg.evaluation import evaluate, gymnasium_reset_states
+    from jaxpg.reinforce import train
+    from jaxpg.sweeps import last_mean
     from jaxpg.train_config import TrainConfig
 
-    check_seed(args.seed)
+    check_int("seed", args.seed, 0, 2**32)
     _enable_compilation_cache(args.no_cache)
     print("Basic policy, 500 episodes of 200 steps from Gymnasium's reset(seed=episode):")
     states = gymnasium_reset_states(500)
@@ -583,7 +582,8 @@ def build_parser():
     return parser
 
 
-def main(argv=None):
+def run_command(argv=None):
+    """Runs one `jaxpg` command in this process and returns its exit status (2 for bad input)."""
     return _execute(build_parser().parse_args(argv))
 
 
@@ -609,7 +609,7 @@ def _runs_at_once(args):
 
 
 def _interrupt(signum, frame):
-    """Ctrl-C: stops the command once (KeyboardInterrupt, which `schedule.run` passes on only
+    """Ctrl-C: stops the command once (KeyboardInterrupt, which `schedule.train_blocks` passes on only
     when its workers have stopped), and ignores any later one while it ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     raise KeyboardInterrupt
@@ -642,16 +642,16 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     print(f"{PROG}: warning: {text}", file=sys.stderr)
 
 
-def run(argv=None):
-    """The installed `jaxpg` command: `main` in a process with jaxpg's XLA setting (`flags`),
+def main(argv=None):
+    """The installed `jaxpg` command: `run_command` in a process with jaxpg's XLA setting,
     one-line warnings, and Ctrl-C ending it with status 130 and one line."""
-    from jaxpg import flags
+    from jaxpg import xla_options
 
     signal.signal(signal.SIGINT, _interrupt)
     sys.unraisablehook = _unraisable
     warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
-    flags.configure_xla(runs=_runs_at_once(args))
+    xla_options.configure_xla(runs=_runs_at_once(args))
     status = _execute(args)
     if status == 130:  # at once: threads still compiling would be waited for at exit
         sys.stdout.flush()
@@ -661,4 +661,4 @@ def run(argv=None):
 
 
 if __name__ == "__main__":
-    run()
+    main()

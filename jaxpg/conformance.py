@@ -36,9 +36,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import cartpole
-from jaxpg.evaluate import (check_int, evaluate, gymnasium_reset_states, make_gymnasium_env,
-                            reset_gymnasium)
+from jaxpg.evaluation import (
+    evaluate,
+    gymnasium_reset_states,
+    make_gymnasium_env,
+    reset_gymnasium,
+)
 from jaxpg.policies import basic_policy
+from jaxpg.validation import check_int
 
 COMPONENTS = ("x", "x_dot", "theta", "theta_dot")
 
@@ -283,7 +288,7 @@ def _fraction(count, total):
     return "-" if count is None else f"{count}/{total}"
 
 
-def run(episodes=100, seed=0, env_params=None, variants=None, divergence_tolerance=1e-3):
+def compare_with_gymnasium(episodes=100, seed=0, env_params=None, variants=None, divergence_tolerance=1e-3):
     """Plays `episodes` episodes of each variant in Gymnasium and jaxpg and compares every step.
 
     Args:
@@ -297,8 +302,8 @@ def run(episodes=100, seed=0, env_params=None, variants=None, divergence_toleran
     Returns:
       `Report`; `report.ok` is False if any re-synced step disagrees.
     """
-    check_int("episodes", episodes, 1)
-    check_int("seed", seed, 0)
+    check_int("episodes", episodes)
+    check_int("seed", seed, 0, 2**32)
     env_params = cartpole.V1 if env_params is None else env_params
     cartpole.check_params(env_params)
     variants = tuple(VARIANTS) if variants is None else (

@@ -12,7 +12,7 @@ everything that decides it: the function's name and settings, its arguments' str
 dtypes and devices, jaxpg's own source, the versions of jax and jaxlib, the backend, JAX's
 configuration and `XLA_FLAGS`.
 
-Nothing is kept until `enable` names a directory, and nothing that JAX's persistent cache supplied:
+Nothing is kept until `keep_programs` names a directory, and nothing that JAX's persistent cache supplied:
 an executable loaded from a file loses some of its kernels when it is serialised again, so only
 programs that XLA compiled in this process are kept, and none while JAX's cache is on. A file
 that cannot be loaded is compiled again and replaced; a directory that cannot be written means
@@ -56,7 +56,7 @@ import jaxlib
 from jax._src import array as jax_array
 from jax._src.lib import xla_client
 
-from jaxpg import results
+from jaxpg import atomic_files
 
 logger = logging.getLogger(__name__)
 
@@ -70,7 +70,7 @@ def cache_home():
     return pathlib.Path(value) if os.path.isabs(value) else pathlib.Path.home() / ".cache"
 
 
-def enable(directory=None):
+def keep_programs(directory=None):
     """Keeps the programs of every `Stored` function in `directory` from now on, unless the
     directory is another user's or others can write it (then with a warning, none): the next
     process loads them rather than compiling; the `jaxpg` command does this for its own training.
@@ -89,7 +89,7 @@ def enable(directory=None):
         logger.warning("keeping no compiled programs in %s: %s", directory, problem)
         _directory = None
         return
-    results.remove_stale_temporaries(directory)
+    atomic_files.remove_stale_temporaries(directory)
     _directory = directory
 
 
@@ -108,7 +108,7 @@ def _unsafe(directory):
     return None
 
 
-def disable():
+def stop_keeping_programs():
     global _directory
     _directory = None
 
@@ -306,8 +306,8 @@ class Stored:
         path, key = file
         try:
             data = _write(compiled, key)
-            results.private_directory(path.parent)
-            results.atomic_write(path, data)
+            atomic_files.private_directory(path.parent)
+            atomic_files.atomic_write(path, data)
             _unusable.discard(path)
         except Exception as error:  # the program is compiled all the same
             logger.warning("could not keep %s in %s (%s)", self._name, path.parent, error)

@@ -28,6 +28,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
 from jaxpg import cartpole, render
+from jaxpg.validation import check_int
 
 
 def observation_space(env_params):
@@ -282,8 +283,7 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
           sutton_barto_reward: 0 per step and -1 on termination instead of 1 per step.
           env_params: `CartPoleParams` for other physics; CartPole-v1's by default.
         """
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
-            raise ValueError(f"num_envs: must be a positive integer, got {num_envs!r}")
+        check_int("num_envs", num_envs)
         _check_render_mode(render_mode, self.metadata)
         env_params = _make_params(env_params, sutton_barto_reward)
         if max_episode_steps is not None:

@@ -10,7 +10,7 @@ import pathlib
 
 import numpy as np
 
-from jaxpg import results
+from jaxpg import atomic_files
 
 FIGSIZE = (8.0, 4.5)  # inches
 DPI = 100  # so an 800 x 450 pixel image, or 800 x 700 for two panels
@@ -25,7 +25,7 @@ def _figure(figsize):
 
 def _save(fig, path):
     """Writes `fig` to `path` atomically and returns the path."""
-    with results.atomic_path(path) as tmp:
+    with atomic_files.atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=DPI)
     return pathlib.Path(path)
 

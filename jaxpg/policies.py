@@ -15,6 +15,7 @@ import numpy as np
 from flax import struct
 
 from jaxpg import runwise, sums
+from jaxpg.validation import check_choice
 
 ACTIVATIONS = {
     "elu": nn.elu,
@@ -36,10 +37,7 @@ def basic_policy(obs, u=None):
 
 def check_network(hidden, activation):
     """Raises a ValueError naming `hidden` or `activation` when they are not allowed."""
-    if activation not in ACTIVATIONS:
-        raise ValueError(
-            f"activation: unknown {activation!r}; allowed: {', '.join(ACTIVATIONS)}"
-        )
+    check_choice("activation", activation, ACTIVATIONS)
     if any(isinstance(h, bool) or not isinstance(h, int | np.integer) or h < 1 for h in hidden):
         raise ValueError(f"hidden: must be positive layer sizes (none: a linear policy), "
                          f"got {tuple(hidden)}")

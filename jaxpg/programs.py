@@ -10,8 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import cartpole, executables, policies
-from jaxpg.iteration import (Metrics, check_config, evaluate_runs, init_runs, is_run_alone,
-                             iterate)
+from jaxpg.iteration import (
+    Metrics,
+    check_config,
+    evaluate_runs,
+    init_runs,
+    is_run_alone,
+    iterate,
+)
 from jaxpg.train_config import TrainConfig
 
 ITERATIONS_PER_CALL = 10  # iterations a call of the program runs at most
@@ -55,7 +61,7 @@ class Program(NamedTuple):
 def compiled_program(config, physics_in_runs=False):
     """The jitted `Program` of `config`; `iterate` consumes (donates) the state it is given.
 
-    Its functions keep their compiled programs on disk while `executables.enable` is in effect.
+    Its functions keep their compiled programs on disk while `executables.keep_programs` is in effect.
 
     Configs that differ only in how many iterations run, what counts as solved, or the values of
     their hyperparameters (but for whether the entropy coefficient is 0: only then can the fast
@@ -78,7 +84,7 @@ def compiled_program(config, physics_in_runs=False):
 INIT_OPTIONS = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 # The iteration of a block of several runs asks for 512-bit vectors (XLA's default is 256), for
 # speed: 1024 seeds trained in 3.70 and 4.30 s instead of 5.50 and 5.69 s, the same bits. A block
-# of one run does not, for its bits: with its loop compiled whole (`jaxpg.flags`), 512-bit vectors
+# of one run does not, for its bits: with its loop compiled whole (`jaxpg.xla_options`), 512-bit vectors
 # round some of its episodes differently from the same run's beside others (8 of the book's seeds
 # 0 to 15).
 TOGETHER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}

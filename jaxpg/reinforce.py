@@ -12,8 +12,9 @@ import warnings
 import jax
 import numpy as np
 
-from jaxpg import budget, flags, policies, programs, progress, schedule
+from jaxpg import budget, policies, programs, progress, schedule, xla_options
 from jaxpg.train_config import TrainConfig
+from jaxpg.validation import check_int
 
 
 def run_keys(seeds):
@@ -42,9 +43,9 @@ def train(config=TrainConfig(), seed=0, init_params=None, on_iteration=None, sho
     """
     if not isinstance(config, TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
-    check_seed(seed)
+    check_int("seed", seed, 0, 2**32)
     budget.check(config)
-    flags.configure_unstarted()
+    xla_options.configure_unstarted()
     hyperparams = config.hyperparams.per_run()
     program = programs.compiled_program(config, physics_in_runs=hyperparams.env is not None)
     if init_params is not None:
@@ -52,18 +53,11 @@ def train(config=TrainConfig(), seed=0, init_params=None, on_iteration=None, sho
     first_run = None if on_iteration is None else (
         lambda i, metrics: on_iteration(i, jax.tree.map(lambda leaf: leaf[0], metrics)))
     with progress.bar(config.iterations, enabled=show_progress) as shown:
-        (result,) = schedule.run(program, config.iterations, [(run_keys([seed]), hyperparams)],
+        (result,) = schedule.train_blocks(program, config.iterations, [(run_keys([seed]), hyperparams)],
                                  progress.together(shown, first_run), init_params)
     result = jax.tree.map(lambda leaf: leaf[0], result)
     warn_if_diverged(jax.tree.map(lambda leaf: leaf[None], result.metrics))
     return result
-
-
-def check_seed(seed):
-    """Raises a ValueError unless `seed` is an integer in [0, 2**32)."""
-    if (isinstance(seed, bool) or not isinstance(seed, int | np.integer)
-            or not 0 <= seed < 2**32):
-        raise ValueError(f"seed: must be an integer in [0, 2**32), got {seed!r}")
 
 
 def check_init_params(config, init_params):

@@ -13,7 +13,8 @@ import pathlib
 import jax
 import numpy as np
 
-from jaxpg import cartpole, results, rollout
+from jaxpg import atomic_files, cartpole, rollout
+from jaxpg.validation import check_int
 
 SCREEN_WIDTH = 600
 SCREEN_HEIGHT = 400
@@ -183,8 +184,7 @@ def render_episode(policy, seed=0, env_params=cartpole.V1, max_steps=500):
       uint8 frames `[T, 400, 600, 3]`, T <= max_steps + 1: the initial state and the state after
       each step.
     """
-    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(f"max_steps: must be a positive integer, got {max_steps!r}")
+    check_int("max_steps", max_steps)
     # One step more than drawn, so that the state after the last drawn step is observed too.
     episodes = rollout.rollout(jax.random.PRNGKey(seed), policy, env_params, 1, max_steps + 1)
     rollout.check_played_actions(episodes.invalid_action)
@@ -222,7 +222,7 @@ def save_animation(frames, path, fps=50):
     else:
         # The duration is in milliseconds (GIF keeps hundredths); loop=0 repeats forever.
         options = {"plugin": "pillow", "duration": 1000 / fps, "loop": 0}
-    with results.atomic_path(path) as tmp:
+    with atomic_files.atomic_path(path) as tmp:
         iio.imwrite(tmp, frames, **options)
     return path
 
@@ -242,5 +242,5 @@ def check_animation_path(path, name="path"):
             raise ImportError(
                 "writing MP4 needs imageio-ffmpeg: pip install imageio-ffmpeg (or write a .gif)"
             ) from None
-    results.check_writable(path.parent, name)
+    atomic_files.check_writable(path.parent, name)
     return path

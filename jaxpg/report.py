@@ -16,8 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxpg import plots, results, stats
-from jaxpg.sweep import SOLVED_WINDOW
+from jaxpg import atomic_files, plots, stats
+from jaxpg.sweeps import SOLVED_WINDOW
 from jaxpg.train_config import HYPERPARAMETERS
 
 SWEEP_FORMAT = "jaxpg-sweep-1"  # summary.json's "format": the folders this version writes and reads
@@ -246,15 +246,15 @@ def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confid
     Returns:
       The comparison, as `compare` returns it.
     """
-    out = results.check_out_dir(out)
+    out = atomic_files.check_out_dir(out)
     comparison = compare(folders, confidence, reps, seed)
     labels = [setting["label"] for setting in comparison["settings"]]
     aggregates = {name: [np.array([s[key][part] for s in comparison["settings"]])
                          for part in ("estimate", "low", "high")]
                   for name, key in (("IQM", "iqm"), ("mean", "mean"))}
     curves, profiles = comparison["iqm_curves"], comparison["performance_profiles"]
-    with results.staged(out) as stage:
-        text = json.dumps(results.to_json(comparison), indent=2, allow_nan=False)
+    with atomic_files.staged(out) as stage:
+        text = json.dumps(atomic_files.to_json(comparison), indent=2, allow_nan=False)
         (stage / COMPARISON_FILE).write_text(text + "\n")
         plots.aggregate_intervals(labels, aggregates, stage / PLOT_FILES[0], xlabel="return")
         plots.performance_profiles(profiles["tau"], profiles["estimate"], profiles["low"],

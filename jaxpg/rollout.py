@@ -150,7 +150,7 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
     # Rewards and alive steps summed in one reduction, exactly: they are whole numbers. Summed as
     # integers, since XLA hands a float sum of several runs' records to a library (YNNPACK), whose
     # call keeps XLA from compiling the training iteration around it into one function
-    # (`jaxpg.flags`).
+    # (`jaxpg.xla_options`).
     returns, alive_steps = records[:, 5:7].astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
     action, alive = records[:, 4], records[:, 6] != 0
     invalid = jnp.any(alive & (action != 0) & (action != 1), axis=(0, 1))

@@ -51,7 +51,7 @@ def cpu_blocks(num_runs):
     return list(zip(bounds[:-1], bounds[1:])), size
 
 
-def run(program, iterations, parts, on_iteration=None, policy_params=None, eval_episodes=0):
+def train_blocks(program, iterations, parts, on_iteration=None, policy_params=None, eval_episodes=0):
     """Trains each part's runs for `iterations` iterations, every part on its own device.
 
     On a CPU a part trains in `cpu_blocks`, spread over one thread per core: XLA runs such small

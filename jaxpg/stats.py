@@ -20,6 +20,8 @@ from typing import NamedTuple
 import numpy as np
 import scipy.stats
 
+from jaxpg.validation import check_int
+
 # Resampled scores held at once (float64, plus as many int64 indices): 32 MiB each.
 _CHUNK_SCORES = 2**22
 PROFILE_POINTS = 101  # performance_profile's default thresholds
@@ -465,16 +467,13 @@ def _check_interval_args(scores, confidence, reps, name="scores"):
         raise ValueError(f"{name}: a confidence interval needs at least 2 runs, got {scores.shape[0]}")
     if not 0 < confidence < 1:
         raise ValueError(f"confidence: must lie in (0, 1), got {confidence!r}")
-    if not isinstance(reps, int | np.integer) or isinstance(reps, bool) or reps < 1:
-        raise ValueError(f"reps: must be a positive integer, got {reps!r}")
+    check_int("reps", reps)
     return scores
 
 
 def _rng(seed):
     """The generator of a bootstrap; a ValueError unless `seed` is a non-negative integer."""
-    if not isinstance(seed, int | np.integer) or isinstance(seed, bool) or seed < 0:
-        raise ValueError(f"seed: must be a non-negative integer, got {seed!r}")
-    return np.random.default_rng(seed)
+    return np.random.default_rng(check_int("seed", seed, 0))
 
 
 def _check_pair(x, y):

@@ -8,12 +8,12 @@ from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import flax.linen as nn
-
 import jax
 import numpy as np
 import optax
 
 from jaxpg import cartpole, losses, policies
+from jaxpg.validation import check_int, check_number
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,9 +61,7 @@ class TrainConfig:
     def __post_init__(self):
         object.__setattr__(self, "hidden", tuple(self.hidden))
         for name in ("iterations", "episodes", "max_steps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name}: must be a positive integer, got {value!r}")
+            object.__setattr__(self, name, check_int(name, getattr(self, name)))
         policies.check_network(self.hidden, self.activation)
         if self.policy is not None and not isinstance(self.policy, nn.Module):
             raise ValueError(f"policy: expected None or a flax.linen.Module, got "
@@ -187,21 +185,6 @@ def check_hyperparams(learning_rate, discount, entropy_coef=0.0):
         number = check_number(name, value)
         if not ok(number):
             raise ValueError(f"{name}: must be {allowed}, got {number}")
-
-
-def check_number(name, value):
-    """`value` as a float; a ValueError naming `name` unless it is one finite real number (an int
-    or a float of Python, numpy or JAX: not a bool, a string or a list, which a sweep's grid
-    holds)."""
-    # numpy, not jnp: building a TrainConfig must not start JAX (jax.distributed comes first).
-    array = np.asarray(value)
-    if array.ndim != 0 or array.dtype.kind not in "iuf":
-        hint = " (one value; a sweep's grid takes several)" if array.ndim else ""
-        raise ValueError(f"{name}: must be a number{hint}, got {value!r}")
-    number = float(array)
-    if not np.isfinite(number):
-        raise ValueError(f"{name}: must be finite, got {number}")
-    return number
 
 
 def _optimizer_factories():

@@ -1,11 +1,11 @@
 """Fixtures and helpers shared by the tests."""
 
-from jaxpg import flags
+from jaxpg import xla_options
 
 # The tests run under the XLA setting that `train` and `sweep` give a process whose JAX has not
-# started (`flags.configure_unstarted`): set here, before any test starts JAX, rather than by
+# started (`xla_options.configure_unstarted`): set here, before any test starts JAX, rather than by
 # whichever test trains first.
-flags.configure_xla()
+xla_options.configure_xla()
 
 import contextlib
 import subprocess
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from jaxpg import TrainConfig
-from jaxpg.sweep import sweep
+from jaxpg.sweeps import sweep
 
 # Ten short runs: five seeds by two learning rates. The device tests run the same sweep as
 # `jaxpg sweep --iterations 3 --episodes 3 --max-steps 20 --seeds 5 --lr 0.01,0.02`.
@@ -33,8 +33,8 @@ def small_sweep():
 
 _HOLD = """
 import sys, time
-from jaxpg import results
-results.claim(sys.argv[1])
+from jaxpg import atomic_files
+atomic_files.claim(sys.argv[1])
 print("held", flush=True)
 time.sleep(120)
 """
@@ -42,7 +42,7 @@ time.sleep(120)
 
 @contextlib.contextmanager
 def claimed_by_another_process(out):
-    """Inside the block, another process holds the output folder `out` (`results.claim`)."""
+    """Inside the block, another process holds the output folder `out` (`atomic_files.claim`)."""
     holder = subprocess.Popen([sys.executable, "-c", _HOLD, str(out)], stdout=subprocess.PIPE,
                               text=True)
     try:

@@ -7,7 +7,7 @@ import pytest
 from conftest import xla_compiles
 
 from jaxpg import TrainConfig, budget, programs, train
-from jaxpg.sweep import device_bytes
+from jaxpg.sweeps import device_bytes
 
 
 def test_the_machine_has_memory():
@@ -24,7 +24,7 @@ def test_the_estimate_grows_with_every_size(field, larger):
 
 
 def test_the_estimate_of_a_run_is_near_what_xla_lays_out():
-    """Within a factor of two of XLA's own account (`sweep.device_bytes`) of one run."""
+    """Within a factor of two of XLA's own account (`sweeps.device_bytes`) of one run."""
     config = TrainConfig(iterations=10, episodes=100, max_steps=200, hidden=(16,))
     measured = device_bytes(programs.compiled_program(config), config.iterations, 1)
     assert measured / 2 < budget.needed_bytes(config) < 2 * measured

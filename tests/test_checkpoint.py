@@ -16,7 +16,7 @@ from conftest import SMALL_CONFIG
 from flax import serialization
 
 import jaxpg
-from jaxpg import cartpole, checkpoint, policies, results
+from jaxpg import atomic_files, cartpole, checkpoint, policies
 from jaxpg.iteration import Metrics
 from jaxpg.train_config import TrainConfig
 
@@ -262,8 +262,8 @@ def test_killed_save_leaves_the_previous_checkpoint(tmp_path):
 
 def test_atomic_write_replaces_content_with_ordinary_permissions(tmp_path):
     path = tmp_path / "notes.txt"
-    results.atomic_write(path, "first")
-    results.atomic_write(path, b"second")
+    atomic_files.atomic_write(path, "first")
+    atomic_files.atomic_write(path, b"second")
     assert path.read_text() == "second"
     ordinary = tmp_path / "ordinary.txt"
     ordinary.write_text("x")

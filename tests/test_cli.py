@@ -16,8 +16,16 @@ import pytest
 from conftest import claimed_by_another_process, xla_compiles
 from jax.experimental.compilation_cache import compilation_cache
 
-from jaxpg import TrainConfig, cartpole, checkpoint, cli, executables, flags, policies
-from jaxpg.evaluate import evaluate, robustness
+from jaxpg import (
+    TrainConfig,
+    cartpole,
+    checkpoint,
+    cli,
+    executables,
+    policies,
+    xla_options,
+)
+from jaxpg.evaluation import evaluate, robustness
 
 SMALL = ["--iterations", "3", "--episodes", "2", "--max-steps", "20", "--quiet", "--no-cache"]
 
@@ -28,7 +36,7 @@ def _run(*args):
 
 def test_train_writes_results_that_evaluate_loads(tmp_path, capsys):
     out = tmp_path / "run"
-    assert cli.main(["train", *SMALL, "--seed", "3", "--out", str(out)]) == 0
+    assert cli.run_command(["train", *SMALL, "--seed", "3", "--out", str(out)]) == 0
     assert {p.name for p in out.iterdir()} == {
         "policy.msgpack", "metrics.json", "metrics.csv", "learning_curve.png"}
     metrics = json.loads((out / "metrics.json").read_text())
@@ -36,7 +44,7 @@ def test_train_writes_results_that_evaluate_loads(tmp_path, capsys):
     assert (out / "metrics.csv").read_text().splitlines()[0].startswith("iteration,mean_return")
     assert checkpoint.load(out).config.max_steps == 20
     capsys.readouterr()
-    assert cli.main(["evaluate", "--policy", str(out), "--episodes", "5", "--backend", "gymnasium"]) == 0
+    assert cli.run_command(["evaluate", "--policy", str(out), "--episodes", "5", "--backend", "gymnasium"]) == 0
     assert "mean" in capsys.readouterr().out
 
 
@@ -56,7 +64,7 @@ def test_a_second_train_loads_the_programs_the_first_kept(tmp_path):
 
 def test_sweep_writes_summary_and_picture(tmp_path):
     out = tmp_path / "sweep"
-    assert cli.main(["sweep", *SMALL, "--seeds", "3", "--lr", "0.01,0.02", "--memory-budget", "1G",
+    assert cli.run_command(["sweep", *SMALL, "--seeds", "3", "--lr", "0.01,0.02", "--memory-budget", "1G",
                      "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert len(summary["grid"]) == 2 and len(summary["fraction_solved"]) == 2
@@ -104,16 +112,16 @@ def test_bad_input_exits_2_with_one_line(args, word):
     (["evaluate"], None),
 ])
 def test_the_command_sizes_xlas_threads_by_the_runs_it_trains_at_once(args, runs):
-    """`run` hands this count to `flags.configure_xla`: one thread for XLA for one run."""
+    """`run` hands this count to `xla_options.configure_xla`: one thread for XLA for one run."""
     assert cli._runs_at_once(cli.build_parser().parse_args(args)) == runs
 
 
 def test_the_command_configures_xla_for_its_runs_before_it_runs(monkeypatch):
     calls = []
-    monkeypatch.setattr(flags, "configure_xla", lambda runs: calls.append(("configure", runs)))
+    monkeypatch.setattr(xla_options, "configure_xla", lambda runs: calls.append(("configure", runs)))
     monkeypatch.setattr(cli, "_execute", lambda args: calls.append(("execute", args.command)) or 0)
     with pytest.raises(SystemExit) as exit_:
-        cli.run(["train", "--seed", "1"])
+        cli.main(["train", "--seed", "1"])
     assert exit_.value.code == 0 and calls == [("configure", 1), ("execute", "train")]
 
 
@@ -127,7 +135,7 @@ def test_out_that_is_a_file_is_refused(tmp_path):
 
 def test_failed_run_keeps_earlier_results(tmp_path, monkeypatch):
     out = tmp_path / "run"
-    assert cli.main(["train", *SMALL, "--out", str(out)]) == 0
+    assert cli.run_command(["train", *SMALL, "--out", str(out)]) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
 
     def broken_plot(*args, **kwargs):
@@ -135,19 +143,19 @@ def test_failed_run_keeps_earlier_results(tmp_path, monkeypatch):
 
     monkeypatch.setattr("jaxpg.plots.learning_curve", broken_plot)
     with pytest.raises(RuntimeError):
-        cli.main(["train", *SMALL, "--seed", "9", "--out", str(out)])
+        cli.run_command(["train", *SMALL, "--seed", "9", "--out", str(out)])
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
 def test_evaluate_basic_policy_prints_statistics(capsys):
-    assert cli.main(["evaluate", "--episodes", "20", "--max-steps", "50"]) == 0
+    assert cli.run_command(["evaluate", "--episodes", "20", "--max-steps", "50"]) == 0
     out = capsys.readouterr().out
     assert "mean" in out and "std" in out and "min" in out and "max" in out
 
 
 def test_render_writes_a_gif(tmp_path):
     path = tmp_path / "cart.gif"
-    assert cli.main(["render", "--out", str(path), "--max-steps", "10"]) == 0
+    assert cli.run_command(["render", "--out", str(path), "--max-steps", "10"]) == 0
     assert path.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
 
 
@@ -163,8 +171,8 @@ def test_a_train_killed_at_any_rename_leaves_the_earlier_result_or_the_new_one(t
     """The issue's reproduction: strace kills the run as it enters its Nth rename (or the
     exchange), for every N until one run ends; the folder holds one run's results each time."""
     out, reference = tmp_path / "run", tmp_path / "reference"
-    assert cli.main(["train", *SMALL, "--seed", "0", "--out", str(out)]) == 0
-    assert cli.main(["train", *SMALL, "--seed", "1", "--out", str(reference)]) == 0
+    assert cli.run_command(["train", *SMALL, "--seed", "0", "--out", str(out)]) == 0
+    assert cli.run_command(["train", *SMALL, "--seed", "1", "--out", str(reference)]) == 0
     old, new = _result(out), _result(reference)
     for syscall, when in [("renameat2", 1), *(("rename", n) for n in range(1, 10))]:
         killed = subprocess.run(
@@ -198,7 +206,7 @@ def test_an_empty_path_is_refused_with_one_line(tmp_path, monkeypatch, capsys, a
     checkpoint.save(tmp_path, policies.init_network(jax.random.PRNGKey(0), TrainConfig().network),
                     TrainConfig())  # what an empty path would have read: the working directory's
     monkeypatch.chdir(tmp_path)
-    assert cli.main(args) == 2
+    assert cli.run_command(args) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and word in lines[0] and "empty path" in lines[0]
     assert [p.name for p in tmp_path.iterdir()] == [checkpoint.FILENAME]
@@ -217,7 +225,7 @@ def test_an_empty_or_relative_xdg_cache_home_is_ignored(tmp_path, monkeypatch, v
         cli._enable_compilation_cache(False)
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "home/.cache/jaxpg/xla")
     finally:
-        executables.disable()
+        executables.stop_keeping_programs()
         jax.config.update("jax_compilation_cache_dir", previous)
         compilation_cache.reset_cache()
     for folder in ("home/.cache", "home/.cache/jaxpg", "home/.cache/jaxpg/xla"):
@@ -227,21 +235,21 @@ def test_an_empty_or_relative_xdg_cache_home_is_ignored(tmp_path, monkeypatch, v
 
 def test_render_writes_a_file_of_a_long_name(tmp_path):
     path = tmp_path / ("c" * 236 + ".gif")  # 240 bytes: the temporary name must be cut to fit
-    assert cli.main(["render", "--out", str(path), "--max-steps", "10"]) == 0
+    assert cli.run_command(["render", "--out", str(path), "--max-steps", "10"]) == 0
     assert [p.name for p in tmp_path.iterdir()] == [path.name]
 
 
 def test_train_and_sweep_take_a_loss_an_entropy_bonus_and_a_linear_policy(tmp_path):
     out = tmp_path / "run"
     args = ["--loss", "baseline", "--entropy-coef", "0.01", "--hidden", ""]
-    assert cli.main(["train", *SMALL, *args, "--out", str(out)]) == 0
+    assert cli.run_command(["train", *SMALL, *args, "--out", str(out)]) == 0
     metrics = json.loads((out / "metrics.json").read_text())["metrics"]
     assert len(metrics["value_loss"]) == len(metrics["entropy"]) == 3
     assert (out / "metrics.csv").read_text().splitlines()[0].endswith("entropy,value_loss")
     loaded = checkpoint.load(out)
     assert (loaded.config.loss, loaded.config.hidden) == ("baseline", ())
     sweep_out = tmp_path / "sweep"
-    assert cli.main(["sweep", *SMALL, "--seeds", "2", "--loss", "reward-to-go",
+    assert cli.run_command(["sweep", *SMALL, "--seeds", "2", "--loss", "reward-to-go",
                      "--entropy-coef", "0,0.01", "--eval-episodes", "4",
                      "--out", str(sweep_out)]) == 0
     with np.load(sweep_out / "metrics.npz") as saved:
@@ -256,7 +264,7 @@ def test_train_and_sweep_take_a_loss_an_entropy_bonus_and_a_linear_policy(tmp_pa
 def sweep_folder(tmp_path_factory):
     """A sweep of two seeds at two learning rates, as `jaxpg sweep` writes it."""
     out = tmp_path_factory.mktemp("cli") / "sweep"
-    assert cli.main(["sweep", *SMALL, "--seeds", "2", "--lr", "0.01,0.02", "--out", str(out)]) == 0
+    assert cli.run_command(["sweep", *SMALL, "--seeds", "2", "--lr", "0.01,0.02", "--out", str(out)]) == 0
     return out
 
 
@@ -266,7 +274,7 @@ def test_a_sweeps_policies_are_evaluated_in_many_physics_settings(sweep_folder, 
     assert loaded.policy_params["params"]["Dense_0"]["kernel"].shape == (2, 2, 4, 5)
     out = tmp_path / "robust"
     capsys.readouterr()
-    assert cli.main(["evaluate", "--policy", str(sweep_folder), "--length", "0.25,0.5,1,2",
+    assert cli.run_command(["evaluate", "--policy", str(sweep_folder), "--length", "0.25,0.5,1,2",
                      "--masspole", "0.1,0.5", "--episodes", "5", "--max-steps", "30",
                      "--out", str(out)]) == 0
     assert "masspole=0.5, length=2: " in capsys.readouterr().out
@@ -290,13 +298,13 @@ def test_one_run_of_a_sweep_is_evaluated_and_rendered(sweep_folder, tmp_path, ca
                      episodes=5, max_steps=30, env=cartpole.V1.replace(length=2.0),
                      backend="gymnasium")
     capsys.readouterr()
-    assert cli.main(["evaluate", "--policy", str(sweep_folder), "--run", "1,0", "--length", "2",
+    assert cli.run_command(["evaluate", "--policy", str(sweep_folder), "--run", "1,0", "--length", "2",
                      "--episodes", "5", "--max-steps", "30", "--backend", "gymnasium"]) == 0
     assert f"mean {alone.mean:.3f}  std {alone.std:.3f}" in capsys.readouterr().out
-    assert cli.main(["evaluate", "--policy", str(sweep_folder), "--episodes", "5"]) == 0
+    assert cli.run_command(["evaluate", "--policy", str(sweep_folder), "--episodes", "5"]) == 0
     assert "default physics: " in capsys.readouterr().out  # every run, in the default physics
     gif = tmp_path / "run.gif"
-    assert cli.main(["render", "--policy", str(sweep_folder), "--run", "0,1", "--out", str(gif),
+    assert cli.run_command(["render", "--policy", str(sweep_folder), "--run", "0,1", "--out", str(gif),
                      "--max-steps", "10"]) == 0
     assert gif.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
 
@@ -321,7 +329,7 @@ def test_bad_evaluate_input_exits_2_with_one_line_and_writes_nothing(sweep_folde
                                                                       capsys, args, word):
     out = tmp_path / "out"
     try:
-        status = cli.main(["evaluate", "--policy", str(sweep_folder), "--out", str(out), *args])
+        status = cli.run_command(["evaluate", "--policy", str(sweep_folder), "--out", str(out), *args])
     except SystemExit as exit_:  # argparse's own errors
         status = exit_.code
     lines = capsys.readouterr().err.strip().splitlines()
@@ -356,7 +364,7 @@ def test_bad_input_is_refused_in_one_line_before_any_work(tmp_path, monkeypatch,
     monkeypatch.chdir(tmp_path)
     start = time.perf_counter()
     with xla_compiles() as compiled:
-        status = cli.main([*args, "--quiet"] if args[0] in ("train", "sweep") else args)
+        status = cli.run_command([*args, "--quiet"] if args[0] in ("train", "sweep") else args)
     seconds = time.perf_counter() - start
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
@@ -397,8 +405,8 @@ def test_ctrl_c_stops_training_at_once_and_keeps_the_earlier_result(tmp_path, co
 
 def test_the_last_10_mean_of_a_seed_is_the_same_in_a_sweep_and_alone(tmp_path):
     args = ["--iterations", "12", "--episodes", "3", "--max-steps", "20", "--quiet", "--no-cache"]
-    assert cli.main(["train", *args, "--seed", "3", "--out", str(tmp_path / "alone")]) == 0
-    assert cli.main(["sweep", *args, "--seeds", "4", "--out", str(tmp_path / "sweep")]) == 0
+    assert cli.run_command(["train", *args, "--seed", "3", "--out", str(tmp_path / "alone")]) == 0
+    assert cli.run_command(["sweep", *args, "--seeds", "4", "--out", str(tmp_path / "sweep")]) == 0
     alone = json.loads((tmp_path / "alone/metrics.json").read_text())["last_10_mean_return"]
     rows = (tmp_path / "sweep/runs.csv").read_text().splitlines()
     column = rows[0].split(",").index("last_10_mean_return")
@@ -408,11 +416,11 @@ def test_the_last_10_mean_of_a_seed_is_the_same_in_a_sweep_and_alone(tmp_path):
 def test_divergence_is_reported_with_its_first_iteration(tmp_path):
     args = [*SMALL, "--lr", "1e30", "--optimizer", "sgd"]
     with pytest.warns(RuntimeWarning, match="diverged: .* from iteration 1 on"):
-        assert cli.main(["train", *args, "--out", str(tmp_path / "run")]) == 0
+        assert cli.run_command(["train", *args, "--out", str(tmp_path / "run")]) == 0
     assert json.loads((tmp_path / "run/metrics.json").read_text())[
         "first_nonfinite_iteration"] == 1
     with pytest.warns(RuntimeWarning, match="diverged"):
-        assert cli.main(["sweep", *args, "--seeds", "2", "--out", str(tmp_path / "sweep")]) == 0
+        assert cli.run_command(["sweep", *args, "--seeds", "2", "--out", str(tmp_path / "sweep")]) == 0
     rows = [row.split(",") for row in (tmp_path / "sweep/runs.csv").read_text().splitlines()]
     column = rows[0].index("first_nonfinite_iteration")
     assert [row[column] for row in rows[1:]] == ["1", "-1"]  # seed 1's stayed finite

@@ -19,7 +19,7 @@ class Phys2dParams(cartpole.CartPoleParams):
 
 
 def test_default_run_is_ok():
-    report = conformance.run()
+    report = conformance.compare_with_gymnasium()
     assert report.ok, report.format()
     assert [v.name for v in report.variants] == list(conformance.VARIANTS)
     for variant in report.variants:
@@ -39,7 +39,7 @@ def test_three_physics_settings_play_identical_episodes():
     assert len(physics) == 3 and set().union(*physics.values()) == set(PHYSICS)
     assert all(getattr(cartpole.V1, field) != value
                for setting in physics.values() for field, value in setting.items())
-    report = conformance.run(variants=list(physics))
+    report = conformance.compare_with_gymnasium(variants=list(physics))
     assert report.ok, report.format()
     for variant in report.variants:
         assert variant.episodes == variant.equal_returns == 100
@@ -52,13 +52,13 @@ def test_three_physics_settings_play_identical_episodes():
 
 def test_float64_run_is_ok():
     with jax.enable_x64(True):
-        report = conformance.run(episodes=20, variants=["v1", "semi-implicit"])
+        report = conformance.compare_with_gymnasium(episodes=20, variants=["v1", "semi-implicit"])
     assert report.dtype == "float64" and report.tolerance == 1e-12
     assert report.ok, report.format()
 
 
 def test_wrong_polemass_length_is_flagged():
-    report = conformance.run(episodes=10, env_params=Phys2dParams(), variants="v1")
+    report = conformance.compare_with_gymnasium(episodes=10, env_params=Phys2dParams(), variants="v1")
     assert not report.ok
     (variant,) = report.variants
     # polemass_length enters temp and xacc: 0.6 instead of 0.05 changes the accelerations by far
@@ -78,4 +78,4 @@ def test_wrong_polemass_length_is_flagged():
 ])
 def test_bad_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=f"^{match}:"):
-        conformance.run(**kwargs)
+        conformance.compare_with_gymnasium(**kwargs)

@@ -28,7 +28,7 @@ def _inputs(seeds):
 
 def _train(seeds, place=lambda leaf: leaf):
     part = jax.tree.map(place, _inputs(seeds))
-    (result,) = schedule.run(programs.compiled_program(CONFIG), CONFIG.iterations, [part])
+    (result,) = schedule.train_blocks(programs.compiled_program(CONFIG), CONFIG.iterations, [part])
     return result
 
 
@@ -39,10 +39,10 @@ def _new_process():
 
 @pytest.fixture
 def store(tmp_path):
-    executables.enable(tmp_path)
+    executables.keep_programs(tmp_path)
     _new_process()
     yield tmp_path
-    executables.disable()
+    executables.stop_keeping_programs()
     _new_process()
 
 
@@ -59,7 +59,7 @@ def test_a_kept_program_is_loaded_and_trains_exactly_the_same(store, monkeypatch
     monkeypatch.setattr(policies, "init_network", _not_again)  # traced by init
     monkeypatch.setattr(programs, "iterate", _not_again)  # traced by iterate
     chex.assert_trees_all_equal(_train([0, 1]), expected)
-    executables.disable()
+    executables.stop_keeping_programs()
     _new_process()
     monkeypatch.undo()
     chex.assert_trees_all_equal(_train([0, 1]), expected)  # the plain jitted program
@@ -110,14 +110,14 @@ def test_each_program_is_compiled_once_ahead_of_its_calls(kept, placed, tmp_path
     """`run` prepares its programs for the arrays its calls pass: numpy ones, or jax arrays
     committed to a device (as a sweep places them), whose state stays committed there."""
     if kept:
-        executables.enable(tmp_path)
+        executables.keep_programs(tmp_path)
     _new_process()
     place = functools.partial(jax.device_put, device=jax.devices()[0]) if placed else np.asarray
     try:
         with xla_compiles() as compiled:
             result = _train([6, 7], place)
     finally:
-        executables.disable()
+        executables.stop_keeping_programs()
         _new_process()
     # (Besides them, taking a block of committed arrays compiles a slice.)
     assert [compiled.count(name) for name in ["jit(_iterate_stacked)", "jit(init_runs)"]] == [1, 1]
@@ -157,7 +157,7 @@ def test_a_failed_compile_is_tried_again_at_the_next_call(store, monkeypatch):
 def test_python_numbers_among_the_arguments_call_the_jitted_function():
     _new_process()
     program, args = programs.compiled_program(CONFIG), _inputs([10])
-    schedule.run(program, CONFIG.iterations, [args])  # its programs are prepared
+    schedule.train_blocks(program, CONFIG.iterations, [args])  # its programs are prepared
     state = program.init(*args)
     _, metrics = program.iterate(state, args[1], 2)
     fields = len(iteration.Metrics._fields) - 1 + len(program.extra)  # `extra` holds the loss's
@@ -207,12 +207,12 @@ def test_a_file_of_another_program_is_warned_about_once_compiled_again_and_repla
 
 def test_cache_directories_are_created_for_the_user_alone(tmp_path):
     directory = tmp_path / "cache" / "jaxpg" / "programs"
-    executables.enable(directory)
+    executables.keep_programs(directory)
     _new_process()
     try:
         _train([13])
     finally:
-        executables.disable()
+        executables.stop_keeping_programs()
         _new_process()
     assert len(list(directory.iterdir())) == 2
     for folder in (tmp_path / "cache", tmp_path / "cache" / "jaxpg", directory):
@@ -224,7 +224,7 @@ def test_a_directory_that_others_can_write_is_not_used(tmp_path, caplog):
     shared.mkdir(mode=0o777)
     shared.chmod(0o777)  # (mkdir's mode is masked by the umask)
     with caplog.at_level(logging.WARNING, logger=executables.__name__):
-        executables.enable(shared)
+        executables.keep_programs(shared)
     assert [r.getMessage() for r in caplog.records] == [
         f"keeping no compiled programs in {shared}: others can write it"]
     _new_process()
@@ -235,6 +235,6 @@ def test_a_directory_that_others_can_write_is_not_used(tmp_path, caplog):
 def test_temporary_files_that_killed_processes_left_are_removed(tmp_path):
     left = tmp_path / ".init-0123.xla.0123456789ab.tmp.xla"
     left.write_bytes(b"half a program")
-    executables.enable(tmp_path)
-    executables.disable()
+    executables.keep_programs(tmp_path)
+    executables.stop_keeping_programs()
     assert list(tmp_path.iterdir()) == []

@@ -87,7 +87,7 @@ def test_parameters_flatten_into_one_vector_and_back(hidden):
     assert flat.shape == (size, 3)
     np.testing.assert_array_equal(
         flat[:, 1], np.concatenate([leaf.ravel() for leaf in jax.tree.leaves(runs[1])]))
-    back = policies.unflatten(np.asarray(flat), network)  # on the host, as `schedule.run` does
+    back = policies.unflatten(np.asarray(flat), network)  # on the host, as `schedule.train_blocks` does
     assert all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(back))
     chex.assert_trees_all_equal(back, jax.tree.map(np.asarray, stacked))
     chex.assert_trees_all_equal(policies.unflatten(policies.flatten(runs[2], network), network),

@@ -44,7 +44,7 @@ def test_calls_of_several_iterations_train_as_calls_of_one(num_runs, iterations)
     keys = reinforce.run_keys(range(num_runs))
     hyperparams = config.hyperparams.per_run(num_runs)
     reported = []
-    (result,) = schedule.run(program, config.iterations, [(keys, hyperparams)],
+    (result,) = schedule.train_blocks(program, config.iterations, [(keys, hyperparams)],
                               lambda iteration, _: reported.append(iteration))
     assert reported == list(range(config.iterations))
     assert [count for _, count in schedule.calls(iterations)] == (

@@ -52,7 +52,7 @@ def test_progress_reports_every_iteration(capsys):
     stream = io.StringIO()
     hyperparams = config.hyperparams.per_run()
     with progress.bar(config.iterations, stream=stream) as on_iteration:
-        (result,) = schedule.run(programs.compiled_program(config), config.iterations,
+        (result,) = schedule.train_blocks(programs.compiled_program(config), config.iterations,
                                   [(reinforce.run_keys([0]), hyperparams)], on_iteration)
     lines = stream.getvalue().splitlines()
     assert [line.split(",")[0] for line in lines] == [f"Iteration: {i}/5" for i in range(1, 6)]

@@ -21,7 +21,7 @@ def sweeps(tmp_path_factory):
     for name, args in (("a", ["--seeds", "4", "--lr", "0.01,0.02"]),
                        ("b", ["--seeds", "3", "--lr", "0.05", "--discount", "0.9,0.99"]),
                        ("one", ["--seeds", "1"])):
-        assert cli.main(["sweep", *SMALL, *args, "--out", str(root / name)]) == 0
+        assert cli.run_command(["sweep", *SMALL, *args, "--out", str(root / name)]) == 0
     return root
 
 
@@ -92,7 +92,7 @@ def test_held_out_returns_are_the_scores_where_the_sweep_has_them(sweeps, tmp_pa
 
 def test_compare_prints_a_table_and_the_matrix_and_writes_the_report(sweeps, tmp_path, capsys):
     out = tmp_path / "comparison"
-    assert cli.main(["compare", str(sweeps / "a"), str(sweeps / "b"), "--out", str(out), "--reps", "500"]) == 0
+    assert cli.run_command(["compare", str(sweeps / "a"), str(sweeps / "b"), "--out", str(out), "--reps", "500"]) == 0
     assert {p.name for p in out.iterdir()} == REPORT_FILES
     comparison = _strict_json(out / report.COMPARISON_FILE)
     labels = [s["label"] for s in comparison["settings"]]
@@ -129,7 +129,7 @@ def test_bad_folders_exit_2_with_one_line(sweeps, tmp_path, capsys, case, messag
     elif case == "other config":
         _edit_summary(copy, lambda summary: summary["config"].update(max_steps=10))
     folders = {"one seed": [sweeps / "one"], "twice": [sweeps / "a", sweeps / "a"]}.get(case, [sweeps / "a", copy])
-    assert cli.main(["compare", *map(str, folders), "--out", str(tmp_path / "out")]) == 2
+    assert cli.run_command(["compare", *map(str, folders), "--out", str(tmp_path / "out")]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and lines[0].startswith("jaxpg compare: error:")
     assert not (tmp_path / "out").exists()
@@ -140,6 +140,6 @@ def test_bad_folders_exit_2_with_one_line(sweeps, tmp_path, capsys, case, messag
     (["--reps", "0"], "reps"),
 ])
 def test_bad_options_exit_2_with_one_line(sweeps, tmp_path, capsys, args, word):
-    assert cli.main(["compare", str(sweeps / "a"), "--out", str(tmp_path / "out"), *args]) == 2
+    assert cli.run_command(["compare", str(sweeps / "a"), "--out", str(tmp_path / "out"), *args]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and word in lines[0]

@@ -9,7 +9,7 @@ import scipy.stats
 from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
 
 from jaxpg import cartpole, rollout
-from jaxpg.evaluate import gymnasium_reset_states
+from jaxpg.evaluation import gymnasium_reset_states
 from jaxpg.policies import basic_policy
 
 jit_rollout = jax.jit(rollout.rollout, static_argnums=(1, 3, 4))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import claimed_by_another_process
 
-from jaxpg import results
+from jaxpg import atomic_files
 
 OLD = {"a.txt": "old a", "b.txt": "old b", "c.txt": "old c"}
 NEW = {"a.txt": "new a", "b.txt": "new b", "c.txt": "new c"}
@@ -22,17 +22,17 @@ def _files(folder):
 
 
 def _write(out, files):
-    with results.staged(out) as stage:
+    with atomic_files.staged(out) as stage:
         for name, text in files.items():
             (stage / name).write_text(text)
 
 
 # Writes NEW into the folder argv[1] through `staged`, killed (SIGKILL, which no cleanup
-# survives) just before the argv[2]-th call of os.rename or results._exchange; argv[3] == "1"
+# survives) just before the argv[2]-th call of os.rename or atomic_files._exchange; argv[3] == "1"
 # makes the system lack the exchange, as one without renameat2 does.
 _KILLED_WRITE = """
 import os, signal, sys
-from jaxpg import results
+from jaxpg import atomic_files
 
 out, kill_at, exchange = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "0"
 calls = []
@@ -46,8 +46,8 @@ def killed_before(function):
     return wrapper
 
 os.rename = killed_before(os.rename)
-results._exchange = killed_before(results._exchange if exchange else lambda a, b: False)
-with results.staged(out) as stage:
+atomic_files._exchange = killed_before(atomic_files._exchange if exchange else lambda a, b: False)
+with atomic_files.staged(out) as stage:
     for name, text in %r.items():
         (stage / name).write_text(text)
 """ % NEW
@@ -64,7 +64,7 @@ def _killed_write(out, kill_at, exchange):
 def test_a_kill_at_any_step_leaves_the_earlier_folder_or_the_new_one_whole(tmp_path, exchange):
     """With the exchange, the folder is the earlier one or the new one at every moment; with two
     renames, a kill between them leaves it aside, and the next run's claim puts it back."""
-    if exchange and results._renameat2() is None:
+    if exchange and atomic_files._renameat2() is None:
         pytest.skip("no renameat2 here")
     seen = set()
     for kill_at in range(1, 10):
@@ -73,11 +73,11 @@ def test_a_kill_at_any_step_leaves_the_earlier_folder_or_the_new_one_whole(tmp_p
         killed = _killed_write(out, kill_at, exchange)
         if exchange:
             assert _files(out) in (OLD, NEW)
-        results.claim(out)
+        atomic_files.claim(out)
         found = _files(out)
         assert found in (OLD, NEW)
         seen.add("new" if found == NEW else "old")
-        results._release(results._real(out))
+        atomic_files._release(atomic_files._real(out))
         assert [p.name for p in tmp_path.iterdir() if p.name.startswith(f".run{kill_at}.")] == [
             f".run{kill_at}.lock"]  # no staging folder, nothing aside
         if not killed:
@@ -96,7 +96,7 @@ def test_a_failed_write_leaves_the_folder_and_releases_it(tmp_path):
     out = tmp_path / "run"
     _write(out, OLD)
     with pytest.raises(RuntimeError):
-        with results.staged(out) as stage:
+        with atomic_files.staged(out) as stage:
             (stage / "a.txt").write_text("half")
             raise RuntimeError("disk full")
     assert _files(out) == OLD
@@ -109,7 +109,7 @@ def test_a_second_process_is_refused_the_folder_another_holds(tmp_path):
     out = tmp_path / "run"
     with claimed_by_another_process(out):
         with pytest.raises(ValueError, match="out: another jaxpg process is writing to"):
-            results.claim(out)
+            atomic_files.claim(out)
     _write(out, NEW)  # the lock went with the process
     assert _files(out) == NEW
 
@@ -119,7 +119,7 @@ def test_what_killed_runs_left_is_removed_by_the_next_claim(tmp_path):
     _write(out, OLD)
     (out / ".staging-0123456789ab").mkdir()  # inside the folder, as jaxpg 0.1.0 staged
     (out / ".staging-0123456789ab" / "a.txt").write_text("partial")
-    staging = tmp_path / results.temporary_name("run", "staging-abcdef012345")
+    staging = tmp_path / atomic_files.temporary_name("run", "staging-abcdef012345")
     staging.mkdir()
     (tmp_path / "other").mkdir()  # not the folder's: stays
     _write(out, NEW)
@@ -136,18 +136,18 @@ def test_folders_that_are_not_jaxpgs_to_replace_are_refused(tmp_path, monkeypatc
     monkeypatch.chdir(tmp_path)
     (tmp_path / "project" / "src").mkdir(parents=True)
     with pytest.raises(ValueError, match=problem.replace("(", r"\(").replace(")", r"\)")):
-        results.claim(make(tmp_path))
+        atomic_files.claim(make(tmp_path))
 
 
 def test_long_names_get_temporary_names_that_fit(tmp_path):
     name = "r" * 240 + ".gif"
-    results.atomic_write(tmp_path / name, b"GIF89a")
+    atomic_files.atomic_write(tmp_path / name, b"GIF89a")
     assert [p.name for p in tmp_path.iterdir()] == [name]
     _write(tmp_path / ("o" * 250), NEW)
     assert _files(tmp_path / ("o" * 250)) == NEW
     assert all(len(p.name.encode()) <= 255 for p in tmp_path.iterdir())
     # Cut at a character, not inside one (each is 3 bytes in UTF-8).
-    assert len(results.temporary_name("é" * 200, "lock").encode()) <= results.NAME_MAX
+    assert len(atomic_files.temporary_name("é" * 200, "lock").encode()) <= atomic_files.NAME_MAX
 
 
 def test_only_temporary_files_that_no_process_writes_are_removed(tmp_path):
@@ -155,22 +155,22 @@ def test_only_temporary_files_that_no_process_writes_are_removed(tmp_path):
     stale.write_bytes(b"half a program")
     kept = tmp_path / "p-1.xla"
     kept.write_bytes(b"a program")
-    with results.atomic_path(tmp_path / "p-2.xla") as writing:
+    with atomic_files.atomic_path(tmp_path / "p-2.xla") as writing:
         writing.write_bytes(b"being written")
-        results.remove_stale_temporaries(tmp_path)
+        atomic_files.remove_stale_temporaries(tmp_path)
         assert writing.exists() and not stale.exists() and kept.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p-1.xla", "p-2.xla"]
 
 
 def test_private_directories_are_created_for_the_user_alone(tmp_path):
-    path = results.private_directory(tmp_path / "cache" / "jaxpg" / "programs")
+    path = atomic_files.private_directory(tmp_path / "cache" / "jaxpg" / "programs")
     for folder in (tmp_path / "cache", tmp_path / "cache" / "jaxpg", path):
         assert stat.S_IMODE(folder.stat().st_mode) == 0o700
 
 
 def test_json_is_strict_with_non_finite_numbers_as_null(tmp_path):
     path = tmp_path / "metrics.json"
-    results.write_json(path, {"loss": np.array([1.5, np.nan, np.inf, -np.inf], np.float32),
+    atomic_files.write_json(path, {"loss": np.array([1.5, np.nan, np.inf, -np.inf], np.float32),
                               "final": float("nan"), "seed": 3})
 
     def refuse(constant):
@@ -193,6 +193,6 @@ def test_a_folder_reached_through_a_link_is_replaced_where_it_is(tmp_path):
 @pytest.mark.parametrize("folder", ["/proc/run", "/proc/x/y"])
 def test_a_folder_that_cannot_be_written_is_refused_when_claimed(folder):
     with pytest.raises(ValueError, match="^out: cannot write in /proc"):
-        results.claim(folder)
+        atomic_files.claim(folder)
     with pytest.raises(ValueError, match="^path: cannot write in /proc"):
-        results.check_writable("/proc", "path")
+        atomic_files.check_writable("/proc", "path")

@@ -15,8 +15,18 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import multihost_utils
 
-from jaxpg import (budget, cartpole, flags, iteration, programs, progress, reinforce, schedule,
-                   train_config)
+from jaxpg import (
+    budget,
+    cartpole,
+    iteration,
+    programs,
+    progress,
+    reinforce,
+    schedule,
+    train_config,
+    xla_options,
+)
+from jaxpg.validation import check_int, check_number
 
 GRID_FIELDS = (*train_config.HYPERPARAMETERS, *train_config.PHYSICS)
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
@@ -86,7 +96,7 @@ def expand_grid(config, grid):
         settings = [{**{name: getattr(config, name) for name in train_config.HYPERPARAMETERS},
                      **{name: getattr(config.env_params, name)
                         for name in train_config.PHYSICS if name in named},
-                     **{name: train_config.check_number(name, value)
+                     **{name: check_number(name, value)
                         for name, value in setting.items()}}
                     for setting in grid]
         if len({tuple(sorted(s.items())) for s in settings}) != len(settings):
@@ -111,7 +121,7 @@ def _axes(grid):
     _check_fields(grid)
     axes = {}
     for name, values in grid.items():
-        options = [train_config.check_number(name, value)
+        options = [check_number(name, value)
                    for value in np.atleast_1d(np.asarray(values)).tolist()]
         if not options:
             raise ValueError(f"{name}: the grid needs at least one value")
@@ -202,12 +212,10 @@ def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_pr
       held-out returns `[G, S, N]`), on every process.
     """
     seeds, settings = check_arguments(config, seeds, grid, memory_budget)
-    if (isinstance(eval_episodes, bool) or not isinstance(eval_episodes, int | np.integer)
-            or not 0 <= eval_episodes <= 2**20):
-        raise ValueError(f"eval_episodes: must be an integer in [0, 2**20], got {eval_episodes!r}")
+    eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
     inputs = run_inputs(config, seeds, settings)
     num_runs = inputs[0].shape[0]
-    flags.configure_unstarted()
+    xla_options.configure_unstarted()
     # The fast path only where no run has an entropy bonus: one program serves every setting.
     entropy = max(setting["entropy_coef"] for setting in settings)
     program = programs.compiled_program(dataclasses.replace(config, entropy_coef=entropy),
@@ -285,7 +293,7 @@ def train_on_devices(program, iterations, inputs, on_iteration=None, eval_episod
     first = jax.process_index() * per_process
     shares = [slice(first + i * per_device, first + (i + 1) * per_device) for i in range(len(devices))]
     parts = [jax.device_put(_take(inputs, share), device) for share, device in zip(shares, devices)]
-    local = schedule.run(program, iterations, parts, on_iteration, eval_episodes=eval_episodes)
+    local = schedule.train_blocks(program, iterations, parts, on_iteration, eval_episodes=eval_episodes)
     local = jax.tree.map(lambda *leaves: np.concatenate(leaves), *local)
     return multihost_utils.process_allgather(local, tiled=True)
 

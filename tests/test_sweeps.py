@@ -1,7 +1,6 @@
 """Sweeps: seed i of a sweep is `train(seed=i)` exactly; chunks; summary statistics; bad input."""
 
 import dataclasses
-import importlib
 
 import chex
 import jax
@@ -15,8 +14,8 @@ from conftest import (
     xla_compiles,
 )
 
-from jaxpg import TrainConfig, TrainResult, cartpole, programs, schedule, train
-from jaxpg.sweep import chunk_size, device_bytes, fitting_chunk_size, summarize, sweep
+from jaxpg import TrainConfig, TrainResult, cartpole, programs, schedule, sweeps, train
+from jaxpg.sweeps import chunk_size, device_bytes, fitting_chunk_size, summarize, sweep
 
 
 @pytest.fixture(scope="module")
@@ -75,8 +74,7 @@ def test_budget_below_one_run_is_one_line_error():
 
 def test_chunk_shrinks_until_its_program_fits(monkeypatch):
     # Bytes that grow faster than the runs: n runs need 100 n (1 + n / 10).
-    sweep_module = importlib.import_module("jaxpg.sweep")  # `jaxpg.sweep` names the function
-    monkeypatch.setattr(sweep_module, "device_bytes",
+    monkeypatch.setattr(sweeps, "device_bytes",
                         lambda program, iterations, n: 100 * n * (1 + n / 10))
     # One run needs 110, so the first guess is 9 runs, balanced to 7 (20 runs in 3 chunks), which
     # need 1190; 7 * 1000 // 1190 = 5 per chunk need 750.

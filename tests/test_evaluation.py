@@ -13,7 +13,7 @@ from conftest import xla_compiles
 from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
 
 from jaxpg import cartpole, policies
-from jaxpg.evaluate import EvalResult, evaluate, gymnasium_reset_states, robustness
+from jaxpg.evaluation import EvalResult, evaluate, gymnasium_reset_states, robustness
 from jaxpg.policies import basic_policy
 
 

@@ -31,7 +31,7 @@ Only as long as a run alone compiles with XLA's own vector width: with 512-bit v
 differently (8 of the book's seeds 0 to 15 ended elsewhere), as the older emitter can round a run
 axis of one entry differently from two or more, by how LLVM fuses multiplications and additions
 into FMAs. While a run alone still had a run axis of one entry, its ten-iteration loop compiled
-whole made 17 of seeds 0 to 63 end with other parameters alone. `tests/test_flags.py` trains seeds
+whole made 17 of seeds 0 to 63 end with other parameters alone. `tests/test_xla_options.py` trains seeds
 alone and side by side under the setting (`benchmarks/check_alone.py`) to keep it so. A loop over
 very large arrays loses XLA's splitting of kernels over the cores (a stream of 65536 environments
 ran 79 M steps/s instead of 105 M); `benchmarks/env_throughput.py` measures XLA's defaults.

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from jaxpg import flags, schedule
+from jaxpg import schedule, xla_options
 
 CHECK_ALONE = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "check_alone.py"
 
@@ -17,13 +17,13 @@ CHECK_ALONE = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "chec
 SCRIPT = """
 import sys
 import numpy as np
-from jaxpg import flags
+from jaxpg import xla_options
 if sys.argv[2] == "set":
-    flags.configure_xla()
+    xla_options.configure_xla()
 if sys.argv[2] == "one thread":
-    flags.configure_xla(runs=1)
+    xla_options.configure_xla(runs=1)
 from jaxpg import train_config, programs, reinforce, schedule
-from jaxpg.sweep import check_seeds, expand_grid, run_inputs
+from jaxpg.sweeps import check_seeds, expand_grid, run_inputs
 
 schedule.usable_cores = lambda: 1  # on more cores, three runs would train alone
 config = train_config.TrainConfig(iterations=12, episodes=3, max_steps=40)
@@ -31,7 +31,7 @@ program = programs.compiled_program(config)
 saved = {}
 for num_runs in (1, 3):
     keys, hyperparams = run_inputs(config, check_seeds(range(num_runs)), expand_grid(config, None))
-    (result,) = schedule.run(program, config.iterations, [(keys, hyperparams)])
+    (result,) = schedule.train_blocks(program, config.iterations, [(keys, hyperparams)])
     for name, leaf in result.metrics.columns().items():
         saved[f"{num_runs}-{name}"] = leaf
     for i, leaf in enumerate(reinforce.jax.tree.leaves(result.policy_params)):
@@ -43,9 +43,9 @@ np.savez(sys.argv[1], **saved)
 # backend option it does not know, so only its code shows whether the setting arrived.
 DUMPED = """
 import os, sys
-from jaxpg import flags
+from jaxpg import xla_options
 if sys.argv[2] == "set":
-    flags.configure_xla()
+    xla_options.configure_xla()
 os.environ["XLA_FLAGS"] = f"{os.environ['XLA_FLAGS']} --xla_dump_to={sys.argv[1]}".strip()
 import jax, jax.numpy as jnp
 jax.block_until_ready(jax.jit(lambda x: jnp.cumsum(x * 2.0 + 1.0))(jnp.arange(37.0)))
@@ -53,7 +53,7 @@ jax.block_until_ready(jax.jit(lambda x: jnp.cumsum(x * 2.0 + 1.0))(jnp.arange(37
 
 
 def _run(*args):
-    env = {name: value for name, value in os.environ.items() if name not in flags.THREADS}
+    env = {name: value for name, value in os.environ.items() if name not in xla_options.THREADS}
     env["XLA_FLAGS"] = ""
     return subprocess.run([sys.executable, "-c", *args], env=env, capture_output=True, text=True)
 
@@ -95,7 +95,7 @@ def test_under_the_setting_seeds_train_alone_as_side_by_side():
     The programs of one run and of several are compiled apart, each into one function
     (`xla_cpu_small_while_loop_byte_threshold`, in the setting), and XLA can round them
     differently: it did when a run alone asked for 512-bit vectors, or still had a run axis of one
-    entry (`jaxpg.flags`). Runs alone cost little once their program is compiled (about 9 s in
+    entry (`jaxpg.xla_options`). Runs alone cost little once their program is compiled (about 9 s in
     all, in two processes).
     """
     result = subprocess.run([sys.executable, str(CHECK_ALONE), "--seeds", "21"],
@@ -107,11 +107,11 @@ def test_under_the_setting_seeds_train_alone_as_side_by_side():
 # under the setting, and prints for each how many `while` loops its entry computation runs kernel by
 # kernel and how many it calls as one function.
 WHOLE = """
-from jaxpg import flags
-flags.configure_xla()
+from jaxpg import xla_options
+xla_options.configure_xla()
 import numpy as np
 from jaxpg import train_config, programs, reinforce, schedule
-from jaxpg.sweep import check_seeds, expand_grid, run_inputs
+from jaxpg.sweeps import check_seeds, expand_grid, run_inputs
 
 config = train_config.TrainConfig()
 program = programs.compiled_program(config)
@@ -128,7 +128,7 @@ for runs in (1, schedule.CPU_BLOCK):
 def test_under_the_setting_the_iteration_compiles_into_one_function():
     """The ten-iteration loop of a run alone and of a block of runs is one function: compiled
     sooner than kernel by kernel, and run sooner. A float sum that XLA hands to a library, a
-    library call anywhere in the loop, or a loop of more bytes than `flags.WHOLE_LOOP_BYTES` would
+    library call anywhere in the loop, or a loop of more bytes than `xla_options.WHOLE_LOOP_BYTES` would
     keep it kernel by kernel."""
     result = _run(WHOLE)
     assert result.returncode == 0, result.stderr
@@ -154,8 +154,8 @@ def test_the_setting_reaches_llvm_which_then_unrolls_no_loops(tmp_path):
 # how many pieces the compiled program splits it into.
 SPLIT = """
 import re, sys
-from jaxpg import flags
-flags.configure_xla(runs=1 if sys.argv[1] == "one thread" else None)
+from jaxpg import xla_options
+xla_options.configure_xla(runs=1 if sys.argv[1] == "one thread" else None)
 import jax, jax.numpy as jnp
 text = jax.jit(lambda x: jnp.sin(x) * 2.0).lower(jnp.zeros(2**20)).compile().as_text()
 print(max([int(n) for n in re.findall(r'outer_dimension_partitions":\\["(\\d+)', text)] or [1]))
@@ -173,40 +173,40 @@ def test_one_thread_reaches_xla_which_then_splits_no_kernel():
 
 
 def test_xla_gets_one_thread_for_a_process_that_trains_one_run(monkeypatch):
-    for name in (*flags.THREADS, flags.CPU_DEVICES):  # absent now, and again after the test
+    for name in (*xla_options.THREADS, xla_options.CPU_DEVICES):  # absent now, and again after the test
         monkeypatch.setenv(name, "")
         monkeypatch.delenv(name)
     monkeypatch.setenv("XLA_FLAGS", "")
     for runs in (None, 2, schedule.CPU_BLOCK - 1):  # nothing trained; two runs; a large block
-        flags.configure_xla(runs=runs)
-        assert flags.THREADS[0] not in os.environ
-    flags.configure_xla(runs=1)
-    assert os.environ[flags.THREADS[0]] == "1"
-    for name in flags.THREADS:  # an empty variable is no choice: XLA ignores it
-        monkeypatch.setenv(flags.THREADS[0], "")
+        xla_options.configure_xla(runs=runs)
+        assert xla_options.THREADS[0] not in os.environ
+    xla_options.configure_xla(runs=1)
+    assert os.environ[xla_options.THREADS[0]] == "1"
+    for name in xla_options.THREADS:  # an empty variable is no choice: XLA ignores it
+        monkeypatch.setenv(xla_options.THREADS[0], "")
         monkeypatch.setenv(name, "")
-        flags.configure_xla(runs=1)
-        assert os.environ[flags.THREADS[0]] == "1"
+        xla_options.configure_xla(runs=1)
+        assert os.environ[xla_options.THREADS[0]] == "1"
         monkeypatch.delenv(name)
-    for name in flags.THREADS:  # the environment's own choice stays
-        monkeypatch.delenv(flags.THREADS[0], raising=False)
+    for name in xla_options.THREADS:  # the environment's own choice stays
+        monkeypatch.delenv(xla_options.THREADS[0], raising=False)
         monkeypatch.setenv(name, "3")
-        flags.configure_xla(runs=1)
-        assert os.environ.get(flags.THREADS[0], "3") == "3"
+        xla_options.configure_xla(runs=1)
+        assert os.environ.get(xla_options.THREADS[0], "3") == "3"
         monkeypatch.delenv(name)
     # A sweep's copies of its one run train side by side on several devices, which need threads.
     for name, value in (("XLA_FLAGS", "--xla_force_host_platform_device_count=2"),
-                        (flags.CPU_DEVICES, "2")):
+                        (xla_options.CPU_DEVICES, "2")):
         monkeypatch.setenv(name, value)
-        flags.configure_xla(runs=1)
-        assert flags.THREADS[0] not in os.environ
+        xla_options.configure_xla(runs=1)
+        assert xla_options.THREADS[0] not in os.environ
         monkeypatch.delenv(name)
 
 
 def test_the_setting_is_added_to_xla_flags_unless_backend_options_are_given(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
-    flags.configure_xla()
-    assert os.environ["XLA_FLAGS"] == f"--xla_force_host_platform_device_count=2 {flags.SETTING}"
-    monkeypatch.setenv("XLA_FLAGS", flags.XLA_DEFAULTS)
-    flags.configure_xla()
-    assert os.environ["XLA_FLAGS"] == flags.XLA_DEFAULTS
+    xla_options.configure_xla()
+    assert os.environ["XLA_FLAGS"] == f"--xla_force_host_platform_device_count=2 {xla_options.SETTING}"
+    monkeypatch.setenv("XLA_FLAGS", xla_options.XLA_DEFAULTS)
+    xla_options.configure_xla()
+    assert os.environ["XLA_FLAGS"] == xla_options.XLA_DEFAULTS

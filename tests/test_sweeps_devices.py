@@ -14,14 +14,14 @@ import jax
 import numpy as np
 from conftest import SMALL_CONFIG, SMALL_GRID, SMALL_SEEDS, assert_trained_alike
 
-from jaxpg import flags
+from jaxpg import xla_options
 
 TWO_DEVICES = """
 import sys
 import jax
 import numpy as np
 from jaxpg import TrainConfig
-from jaxpg.sweep import sweep
+from jaxpg.sweeps import sweep
 
 assert jax.device_count() == 2, jax.devices()
 swept = sweep({config!r}, {seeds!r}, {grid!r})
@@ -60,8 +60,8 @@ def test_two_processes_train_as_one_and_process_0_writes(small_sweep, tmp_path):
               "--lr", "0.01,0.02", "--no-cache", "--coordinator", f"localhost:{_free_port()}",
               "--num-processes", "2"]
     # XLA's default setting, as in this process: the command's own rounds the gradient norm
-    # differently in its last bit (tests/test_flags.py).
-    env = {**os.environ, "XLA_FLAGS": flags.XLA_DEFAULTS}
+    # differently in its last bit (tests/test_xla_options.py).
+    env = {**os.environ, "XLA_FLAGS": xla_options.XLA_DEFAULTS}
     processes = [
         subprocess.Popen([sys.executable, "-m", "jaxpg.cli", *common, "--process-id", str(i),
                           "--out", str(tmp_path / f"out{i}")], env=env, stderr=subprocess.PIPE,

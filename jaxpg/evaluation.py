@@ -15,8 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import cartpole, rng, rollout, sweep, train_config
+from jaxpg import cartpole, rng, rollout, sweeps, train_config
 from jaxpg.policies import PolicyNetwork, init_network, network_policy
+from jaxpg.validation import check_choice, check_int
 
 BACKENDS = ("jaxpg", "gymnasium")
 BLOCK = 16  # runs `robustness` plays side by side: the fastest of 8 to 256 (benchmarks/README.md)
@@ -30,13 +31,6 @@ class EvalResult(NamedTuple):
     min: float
     max: float
     returns: np.ndarray  # [episodes] float64
-
-
-def check_int(name, value, minimum):
-    """Raises a ValueError naming `name` unless `value` is an integer >= `minimum` (and < 2**32)."""
-    is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
-    if not is_int or not minimum <= value < 2**32:
-        raise ValueError(f"{name}: must be an integer in [{minimum}, 2**32), got {value!r}")
 
 
 def resolve_env(env):
@@ -96,8 +90,8 @@ def gymnasium_reset_states(episodes, seed=0, env="CartPole-v1"):
       `[episodes, 4]` float64 (x, x_dot, theta, theta_dot), as `env.unwrapped.state` holds them;
       `cartpole.CartPoleState.from_array` turns them into jaxpg's initial states.
     """
-    check_int("episodes", episodes, 1)
-    check_int("seed", seed, 0)
+    check_int("episodes", episodes)
+    check_int("seed", seed, 0, 2**32)
     env_params, env_id = resolve_env(env)
     gym_env = make_gymnasium_env(env_params, env_id)
     states = []
@@ -133,11 +127,10 @@ def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, bac
     """
     if not callable(policy):
         raise ValueError(f"policy: must be a callable (obs, u) -> action, got {policy!r}")
-    check_int("episodes", episodes, 1)
-    check_int("max_steps", max_steps, 1)
-    check_int("seed", seed, 0)
-    if backend not in BACKENDS:
-        raise ValueError(f"backend: must be {' or '.join(BACKENDS)}, got {backend!r}")
+    check_int("episodes", episodes)
+    check_int("max_steps", max_steps)
+    check_int("seed", seed, 0, 2**32)
+    check_choice("backend", backend, BACKENDS)
     env_params, env_id = resolve_env(env)
     if backend == "gymnasium":
         if init_states is not None:
@@ -279,7 +272,7 @@ def physics_settings(env_grid, env_params):
 
     Args:
       env_grid: None (`env_params` alone: one empty setting); a dict of `CartPoleParams` field to
-        values, whose product the settings are, in `sweep.expand_grid`'s order (the last field
+        values, whose product the settings are, in `sweeps.expand_grid`'s order (the last field
         varying fastest); or a list of dicts, the settings themselves.
       env_params: the `CartPoleParams` that every setting modifies.
 
@@ -293,7 +286,7 @@ def physics_settings(env_grid, env_params):
         raise ValueError(f"env_grid: unknown field(s) {', '.join(sorted(map(str, unknown)))}; "
                          f"allowed: {', '.join(train_config.PHYSICS)}")
     try:
-        settings = sweep.expand_grid(train_config.TrainConfig(env=env_params), env_grid)
+        settings = sweeps.expand_grid(train_config.TrainConfig(env=env_params), env_grid)
     except ValueError as error:  # the grid's own messages, for the argument of this name
         raise ValueError(re.sub("^grid:", "env_grid:", str(error))) from None
     return [{name: value for name, value in setting.items() if name in train_config.PHYSICS}
@@ -335,9 +328,9 @@ def robustness(policies, env_grid=None, episodes=100, max_steps=200, seed=0, net
     Returns:
       `Robustness` with returns `[G, S, P, E]` and the P settings.
     """
-    check_int("episodes", episodes, 1)
-    check_int("max_steps", max_steps, 1)
-    check_int("seed", seed, 0)
+    check_int("episodes", episodes)
+    check_int("max_steps", max_steps)
+    check_int("seed", seed, 0, 2**32)
     env_params, _ = resolve_env(env)
     settings = physics_settings(env_grid, env_params)
     network = PolicyNetwork() if network is None else network
@@ -357,7 +350,7 @@ def robustness(policies, env_grid=None, episodes=100, max_steps=200, seed=0, net
 
 def _split_policies(policies, network):
     """(a policy function, None), or (None, the parameters `[G, S, ...]` of `network`), checked."""
-    if isinstance(policies, sweep.SweepResult):
+    if isinstance(policies, sweeps.SweepResult):
         policies = policies.policy_params
     if _is_function(policies):
         return policies, None

@@ -1,0 +1,75 @@
+"""Checks of arguments, shared by every module that takes them.
+
+Each check returns the value it accepts, converted, or raises a one-line `ValueError` that names the
+argument and says what is allowed. They use numpy only, so that a check runs before JAX starts or
+compiles anything.
+"""
+
+from collections.abc import Collection
+from typing import Any
+
+import numpy as np
+
+
+def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = None) -> int:
+    """`value` as an `int`; a ValueError naming `name` unless it is an integer in range.
+
+    Args:
+      name: the argument's name, which the message starts with.
+      value: a Python or numpy integer (a bool is not one).
+      minimum: the smallest value allowed.
+      maximum: optional: the first value not allowed above `minimum` (`[minimum, maximum)`).
+
+    Returns:
+      `value` as a Python `int`.
+    """
+    is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
+    if not is_int or value < minimum or (maximum is not None and value >= maximum):
+        raise ValueError(f"{name}: must be {_int_range(minimum, maximum)}, got {value!r}")
+    return int(value)
+
+
+def _int_range(minimum: int, maximum: int | None) -> str:
+    """How `check_int` words its range."""
+    if maximum is not None:
+        power = maximum.bit_length() - 1
+        top = f"2**{power}" if maximum == 2**power >= 1024 else str(maximum)
+        return f"an integer in [{minimum}, {top})"
+    return {0: "a non-negative integer", 1: "a positive integer"}.get(
+        minimum, f"an integer of at least {minimum}")
+
+
+def check_number(name: str, value: Any) -> float:
+    """`value` as a float; a ValueError naming `name` unless it is one finite real number.
+
+    Args:
+      name: the argument's name, which the message starts with.
+      value: an int or a float of Python, numpy or JAX (not a bool, a string or a list, which a
+        sweep's grid holds).
+
+    Returns:
+      `value` as a Python `float`.
+    """
+    array = np.asarray(value)
+    if array.ndim != 0 or array.dtype.kind not in "iuf":
+        hint = " (one value; a sweep's grid takes several)" if array.ndim else ""
+        raise ValueError(f"{name}: must be a number{hint}, got {value!r}")
+    number = float(array)
+    if not np.isfinite(number):
+        raise ValueError(f"{name}: must be finite, got {number}")
+    return number
+
+
+def check_choice(name: str, value: Any, allowed: Collection[str], what: str = "") -> str:
+    """`value`; a ValueError naming `name` and listing `allowed` unless it is one of them.
+
+    Args:
+      name: the argument's name, which the message starts with.
+      value: the value given.
+      allowed: the values allowed, in the order the message lists them.
+      what: optional: a word for the kind of value (`"preset"`), put before it in the message.
+    """
+    if not isinstance(value, str) or value not in allowed:
+        kind = f"{what} " if what else ""
+        raise ValueError(f"{name}: unknown {kind}{value!r}; allowed: {', '.join(allowed)}")
+    return value
