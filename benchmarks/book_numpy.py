@@ -111,11 +111,11 @@ def play_one_step(env, obs, model, rng):
 def play_multiple_episodes(env, n_episodes, n_max_steps, model, rng):
     all_rewards = []
     all_grads = []
-    for episode in range(n_episodes):
+    for _episode in range(n_episodes):
         current_rewards = []
         current_grads = []
         obs, info = env.reset()
-        for step in range(n_max_steps):
+        for _step in range(n_max_steps):
             obs, reward, done, truncated, grads = play_one_step(env, obs, model, rng)
             current_rewards.append(reward)
             current_grads.append(grads)

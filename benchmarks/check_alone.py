@@ -7,8 +7,8 @@ with XLA's threads one per core as a sweep has them, and the seeds alone in a pr
 that gives XLA one thread, as `jaxpg train` does. At least `schedule.ALONE_PER_CORE + 1` seeds:
 fewer would train alone in the blocks' process too. It counts the seeds whose parameters or
 statistics differ in any bit (-0 and +0 differ too). Programs of one run and of several are
-compiled apart, and XLA can round them differently (see `jaxpg.xla_options`): the suite checks 21 seeds
-(two blocks padded to 16), this script as many as asked.
+compiled apart, and XLA can round them differently (see `jaxpg.xla_options`): the suite checks
+21 seeds (two blocks padded to 16), this script as many as asked.
 
     python benchmarks/check_alone.py                 # seeds 0 to 63; about 20 s
     python benchmarks/check_alone.py --seeds 4 --iterations 10

@@ -1,10 +1,11 @@
 """`train` and `sweep` called from Python against the `jaxpg` command, each in a fresh process.
 
-The command sets up XLA for the runs it trains (`jaxpg.xla_options.configure_xla(runs=...)`); a Python
-program that calls `train` or `sweep` first gets the setting from them (`xla_options.configure_unstarted`:
-all but the one thread for XLA that the command gives a run alone). Each round runs one process of
-each kind, alternating, both compiling afresh (`--no-cache`; no `keep_programs`), and compares the
-time inside `train`/`sweep` (compiling and training), which the command writes to its results.
+The command sets up XLA for the runs it trains (`jaxpg.xla_options.configure_xla(runs=...)`); a
+Python program that calls `train` or `sweep` first gets the setting from them
+(`xla_options.configure_unstarted`: all but the one thread for XLA that the command gives a run
+alone). Each round runs one process of each kind, alternating, both compiling afresh
+(`--no-cache`; no `keep_programs`), and compares the time inside `train`/`sweep` (compiling and
+training), which the command writes to its results.
 
     python benchmarks/library_speed.py                  # 1 and 256 seeds, 5 rounds
     python benchmarks/library_speed.py --rounds 1       # a quick check that everything runs

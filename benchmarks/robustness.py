@@ -11,14 +11,14 @@ command's XLA setting (`jaxpg.xla_options.configure_xla`):
 - evaluate loop: `evaluate(network_policy(...), env=setting)` for each policy and setting, one
   call each, the whole loop timed (its first call compiles the first time);
 - user vmap: a user's own `jax.vmap` over policies and settings of `rollout.rollout` in one `jit`,
-  as the issue that asked for `robustness` wrote it (its episodes are not `evaluate`'s: it lets
+  as a user would write it without `robustness` (its episodes are not `evaluate`'s: it lets
   `rollout` draw the initial states).
 
 Steps are the steps played inside episodes (the sum of the returns), the same for the first two,
 which must return equal arrays (checked).
 
-    python benchmarks/robustness.py            # 64 policies x 40 settings x 100 episodes of 200 steps
-    python benchmarks/robustness.py --quick    # 4 policies x 4 settings x 10 episodes: only checks it runs
+    python benchmarks/robustness.py          # 64 policies x 40 settings x 100 episodes of 200 steps
+    python benchmarks/robustness.py --quick  # 4 policies x 4 settings x 10 episodes: checks it runs
 """
 
 import argparse
@@ -87,11 +87,13 @@ def main():
     parser = argparse.ArgumentParser(description="robustness evaluation against its peers")
     parser.add_argument("--quick", action="store_true", help="small sizes: only checks it runs")
     parser.add_argument("--policies", type=int, default=64, help="seeds trained (default 64)")
-    parser.add_argument("--lengths", type=floats, default=[0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 3.0])
+    parser.add_argument("--lengths", type=floats,
+                        default=[0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 3.0])
     parser.add_argument("--masspoles", type=floats, default=[0.05, 0.1, 0.3, 0.5, 1.0])
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--max-steps", type=int, default=200)
-    parser.add_argument("--repeats", type=int, default=3, help="warm calls of robustness and the user vmap (the loop: one)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="warm calls of robustness and the user vmap (the loop: one)")
     parser.add_argument("--peers", default="evaluate-loop,user-vmap",
                         help="peers to measure, of evaluate-loop, user-vmap (default both)")
     args = parser.parse_args()

@@ -5,7 +5,8 @@ alike; the table gives the median, min and max wall time of each (imports, train
 picture written), and the median time inside `train` (finding or compiling the programs, then the
 150 iterations), which `jaxpg train` writes to metrics.json:
 
-- kept: the programs that `train` keeps whole (`jaxpg.executables`), written by an untimed first run;
+- kept: the programs that `train` keeps whole (`jaxpg.executables`), written by an untimed first
+  run;
 - jax cache: JAX's persistent compilation cache, warmed by an untimed first run; the process
   still traces and lowers the programs to look them up;
 - compile: `--no-cache`, compiling afresh.
@@ -46,7 +47,8 @@ def commands(scratch):
         "kept": ([*cli, *train, str(scratch / "kept")], env, scratch / "kept"),
         "jax cache": ([sys.executable, "-c", JAX_CACHE, str(scratch / "xla"), *train,
                        str(scratch / "jax"), "--no-cache"], env, scratch / "jax"),
-        "compile": ([*cli, *train, str(scratch / "compile"), "--no-cache"], env, scratch / "compile"),
+        "compile": ([*cli, *train, str(scratch / "compile"), "--no-cache"], env,
+                    scratch / "compile"),
     }
 
 

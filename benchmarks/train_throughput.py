@@ -1,10 +1,10 @@
 """Compile time, run time and environment steps per second of REINFORCE training, jaxpg vs numpy.
 
 jaxpg trains R runs (seeds 0..R-1) of the book's settings (`TrainConfig()`) at once with
-`schedule.train_blocks`, whose compiled program runs ten iterations a call; compiling its two programs
-(`init` and `iterate`, for each size of block of runs that `run` trains: `schedule.part_blocks`,
-as `run` compiles them: `schedule.prepare`) is timed apart from the runs, which follow one
-untimed warm-up run. The
+`schedule.train_blocks`, whose compiled program runs ten iterations a call; compiling its two
+programs (`init` and `iterate`, for each size of block of runs that `train_blocks` trains:
+`schedule.part_blocks`, as `train_blocks` compiles them: `schedule.prepare`) is timed apart from
+the runs, which follow one untimed warm-up run. The
 numpy book implementation (`book_numpy.py`: one seed, one step at a time on Gymnasium's
 CartPole-v1) runs in the same process for scale.
 
@@ -18,11 +18,11 @@ Step counts:
   there too; its step signals are computed for all steps at once.
 
 Each R is measured in a process of its own, started afresh, with the XLA setting that the `jaxpg`
-command has for R runs (`jaxpg.xla_options.configure_xla(runs=R)`: one thread for XLA's CPU client for
-one run), unless XLA_FLAGS already passes backend options or PJRT_NPROC (or NPROC) is set; XLA's
-own defaults are measured with `XLA_FLAGS` set to `jaxpg.xla_options.XLA_DEFAULTS`. Its compile time is
-therefore that of a cold process, and its peak RSS that process's peak. The numpy trainer runs in
-the script's own process, whose peak the file's top-level `peak_rss_mib` is.
+command has for R runs (`jaxpg.xla_options.configure_xla(runs=R)`: one thread for XLA's CPU
+client for one run), unless XLA_FLAGS already passes backend options or PJRT_NPROC (or NPROC) is
+set; XLA's own defaults are measured with `XLA_FLAGS` set to `jaxpg.xla_options.XLA_DEFAULTS`. Its
+compile time is therefore that of a cold process, and its peak RSS that process's peak. The numpy
+trainer runs in the script's own process, whose peak the file's top-level `peak_rss_mib` is.
 
     python benchmarks/train_throughput.py                    # seeds 1 to 1024; 150 iterations
     python benchmarks/train_throughput.py --quick            # a quick check that everything runs
@@ -182,7 +182,8 @@ def parse_args():
     parser.add_argument("--book-env", default="CartPole-v1",
                         help="Gymnasium env id the numpy trainer runs on")
     parser.add_argument("--variants", default="builtin",
-                        help=f"comma-separated configs to train, each R in turn: {', '.join(VARIANTS)}")
+                        help="comma-separated configs to train, each R in turn: "
+                             + ", ".join(VARIANTS))
     parser.add_argument("--row", type=int, help=argparse.SUPPRESS)  # one R, printed as JSON
     args = parser.parse_args()
     if args.quick:
@@ -237,8 +238,9 @@ def main():
     builtin = {row["n"]: row["run_s"] for row in rows if row["impl"] == "jaxpg"}
     for row in rows:
         if row["impl"].startswith("jaxpg-") and row["n"] in builtin:
+            compiled = row["lower_s"] + row["compile_s"]
             print(f"{row['impl']} R={row['n']}: {row['run_s'] / builtin[row['n']]:.2f}x the "
-                  f"built-in path's run time, compiled in {row['lower_s'] + row['compile_s']:.2f} s")
+                  f"built-in path's run time, compiled in {compiled:.2f} s")
     path = common.write_results("train_throughput", args, rows, config=dataclasses.asdict(config))
     common.write_chart(rows, path, "REINFORCE training, simulated env steps/s",
                        xlabel="R (seeds trained at once)")

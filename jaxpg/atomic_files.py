@@ -16,8 +16,8 @@ sweep's folder as a second step). A reader sees the earlier folder or the new on
 A lock (`fcntl.flock` on `.NAME.lock`, beside the folder) keeps a second process from writing the
 same folder while the first trains and writes; the second is refused at once. The lock is
 released when the process ends, so a killed run leaves nothing locked; whatever it left half
-done (`.NAME.staging-*` folders, `.staging-*` folders inside the output folder from earlier
-versions) is removed by the next run that takes the lock.
+done (`.NAME.staging-*` folders, and the `.staging-*` folders that jaxpg 0.1.0 left inside the
+output folder) is removed by the next run that takes the lock.
 
 Every single file jaxpg writes (checkpoints, animations, plots, kept programs) goes through
 `atomic_path`: the content is written to a temporary file in the same directory, flushed to disk,
@@ -41,40 +41,63 @@ import shutil
 import sys
 import tempfile
 import uuid
+from collections.abc import Callable, Iterator, Mapping
+from typing import IO, Any
 
 import numpy as np
+import numpy.typing as npt
 
 try:
     import fcntl
 except ImportError:  # Windows: no advisory locks; a second writer is not detected there
-    fcntl = None
+    fcntl = None  # type: ignore[assignment]  # (mypy types the name as the module alone)
+
+StrPath = str | os.PathLike[str]  # a path as the caller gives it: a string or a `pathlib.Path`
 
 NAME_MAX = 255  # bytes in a file name (Linux, macOS and Windows file systems alike)
 
 
-def temporary_name(name, tag):
-    """`.NAME.TAG`, with NAME cut short (at a character) so that the whole fits in NAME_MAX bytes.
+def temporary_name(name: str, tag: str) -> str:
+    """The name `.NAME.TAG` of a temporary entry beside `name`, within NAME_MAX bytes.
 
-    The same `name` and `tag` length always give the same cut, so that names made with other
-    tags of that length can be recognised (`_beside`).
+    NAME is cut short (at a character) so that the whole fits in NAME_MAX bytes. The same `name`
+    and `tag` length always give the same cut, so that names made with other tags of that length
+    can be recognised (`_beside`).
+
+    Args:
+      name: the name of the file or folder the entry belongs to.
+      tag: what the entry is (`lock`, `staging-<12 hex>`, ...).
+
+    Returns:
+      The entry's name.
     """
     room = max(NAME_MAX - len(tag.encode()) - 2, 0)
     return f".{name.encode()[:room].decode(errors='ignore')}.{tag}"
 
 
-def _unique():
+def _unique() -> str:
+    """Twelve random hex digits, for a name no other process picks."""
     return uuid.uuid4().hex[:12]
 
 
 # --- Output folders ------------------------------------------------------------------------------
 
 
-def check_out_dir(out):
-    """The output directory as a Path; a ValueError when it cannot hold jaxpg's results.
+def check_out_dir(out: StrPath) -> pathlib.Path:
+    """Checks that the output directory `out` can hold jaxpg's results; creates nothing.
 
     Refused: an empty path, an existing file (or a file among its parents), the working directory
     or a directory above it, and a directory holding other directories, which jaxpg never writes
     (its results are files only).
+
+    Args:
+      out: the output directory, existing or not.
+
+    Returns:
+      `out` as a `pathlib.Path`.
+
+    Raises:
+      ValueError: `out` is refused; the message names `out` and says why.
     """
     if not os.fspath(out):
         raise ValueError("out: expected a directory, got an empty path")
@@ -101,17 +124,21 @@ def check_out_dir(out):
 
 
 _LEGACY_STAGING = re.compile(r"\.staging-[0-9a-f]{12}")  # inside the folder, by jaxpg 0.1.0
-_held = {}  # the output folders this process has claimed: real path -> its open lock file
+_held: dict[pathlib.Path, IO[str]] = {}  # the output folders claimed: real path -> its lock file
 
 
-def claim(out):
-    """Checks `out` (`check_out_dir`) and locks it against other processes until `staged` has
-    replaced it, or this process ends; then removes what killed runs left there.
+def claim(out: StrPath) -> pathlib.Path:
+    """Locks the output directory `out` against other processes, after checking it.
 
-    Claiming a folder this process holds already does nothing more.
+    `out` is checked (`check_out_dir`) and locked until `staged` has replaced it, or this process
+    ends; then what killed runs left there is removed. Claiming a folder this process holds
+    already does nothing more.
+
+    Args:
+      out: the output directory, existing or not (its parents are created).
 
     Returns:
-      `out` as a Path.
+      `out` as a `pathlib.Path`.
 
     Raises:
       ValueError: `out` cannot hold results, or another process holds it.
@@ -137,18 +164,19 @@ def claim(out):
     return out
 
 
-def _release(real):
+def _release(real: pathlib.Path) -> None:
+    """Unlocks the folder `real` if this process holds it."""
     lock = _held.pop(real, None)
     if lock is not None:
         lock.close()
 
 
-def _real(out):
+def _real(out: StrPath) -> pathlib.Path:
     """The folder that `out` names, symbolic links followed: the one that is replaced."""
     return pathlib.Path(os.path.realpath(out))
 
 
-def _beside(real, kind):
+def _beside(real: pathlib.Path, kind: str) -> list[pathlib.Path]:
     """The entries beside the folder `real` named `temporary_name(real.name, KIND-<12 hex>)`."""
     pattern = temporary_name(real.name, f"{kind}-{'0' * 12}")
     prefix = pattern[:-12]
@@ -157,9 +185,12 @@ def _beside(real, kind):
             and re.fullmatch(r"[0-9a-f]{12}", path.name[len(prefix):])]
 
 
-def _recover(real):
-    """Undoes what killed runs left: puts back an earlier folder left aside, and removes staging
-    folders. Only for a folder this process holds the lock of."""
+def _recover(real: pathlib.Path) -> None:
+    """Undoes what killed runs left beside and in the folder `real`.
+
+    Puts back an earlier folder left aside, and removes staging folders. Only for a folder this
+    process holds the lock of.
+    """
     aside = _beside(real, "old")
     if aside and not real.exists():
         os.rename(aside.pop(), real)
@@ -172,12 +203,22 @@ def _recover(real):
 
 
 @contextlib.contextmanager
-def staged(out):
-    """Yields an empty staging folder; when the block ends without an error, it takes the place of
-    `out` in one step, holding the files written there and `out`'s earlier files of other names.
+def staged(out: StrPath) -> Iterator[pathlib.Path]:
+    """Replaces the output directory `out` all at once with the files written in the block.
 
-    `out` is claimed (`claim`) if it was not, and released at the end, whether the block ended in
-    an error or not. On an error `out` is left as it was.
+    When the block ends without an error, the staging folder takes the place of `out` in one step,
+    holding the files written there and `out`'s earlier files of other names. `out` is claimed
+    (`claim`) if it was not, and released at the end, whether the block ended in an error or not.
+    On an error `out` is left as it was.
+
+    Args:
+      out: the output directory, existing or not.
+
+    Yields:
+      An empty staging folder (a `pathlib.Path`) beside `out`; write the results there.
+
+    Raises:
+      ValueError: as `claim`.
     """
     out = claim(out)
     real = _real(out)
@@ -194,7 +235,7 @@ def staged(out):
         _release(real)
 
 
-def _carry_over(old, new):
+def _carry_over(old: pathlib.Path, new: pathlib.Path) -> None:
     """Links into `new` the files of `old` of names that `new` lacks, and `old`'s permissions.
 
     Links, not copies: no file is read or written, and none that a reader has open changes.
@@ -205,18 +246,22 @@ def _carry_over(old, new):
     shutil.copymode(old, new)
 
 
-def _sync_folder(folder):
-    """Flushes the files of `folder` and the folder itself to disk, so that after a power cut
-    the folder that took the output folder's place is whole too."""
+def _sync_folder(folder: pathlib.Path) -> None:
+    """Flushes the files of `folder` and the folder itself to disk.
+
+    So that after a power cut the folder that took the output folder's place is whole too.
+    """
     for path in folder.iterdir():
         if path.is_file():
             _fsync(path, os.O_RDONLY)
     _fsync_directory(folder)
 
 
-def _replace(new, out):
-    """Puts the folder `new` at `out` in one step where the system can; afterwards `new` holds the
-    earlier folder, if there was one."""
+def _replace(new: pathlib.Path, out: pathlib.Path) -> None:
+    """Puts the folder `new` at `out`, in one step where the system can.
+
+    Afterwards `new` holds the earlier folder, if there was one.
+    """
     if not out.exists():
         os.rename(new, out)
     elif not _exchange(new, out):
@@ -232,7 +277,7 @@ _RENAME_EXCHANGE = 2
 
 
 @functools.cache
-def _renameat2():
+def _renameat2() -> Callable[..., int] | None:
     """glibc's `renameat2`, or None where there is none (not Linux, or glibc before 2.28)."""
     if not sys.platform.startswith("linux"):
         return None
@@ -243,9 +288,16 @@ def _renameat2():
     return function
 
 
-def _exchange(a, b):
-    """Swaps the entries `a` and `b` in one step; False where the system or the file system
-    cannot, and then nothing has changed."""
+def _exchange(a: pathlib.Path, b: pathlib.Path) -> bool:
+    """Swaps the entries `a` and `b` in one step.
+
+    Returns:
+      True once swapped; False where the system or the file system cannot, and then nothing has
+      changed.
+
+    Raises:
+      OSError: the system could swap them, but failed.
+    """
     renameat2 = _renameat2()
     if renameat2 is None:
         return False
@@ -257,19 +309,30 @@ def _exchange(a, b):
     raise OSError(error, os.strerror(error), os.fspath(b))
 
 
-def _remove(path):
+def _remove(path: pathlib.Path) -> None:
+    """Removes the file, link or folder (with its contents) `path`, if there is one."""
     if path.is_dir() and not path.is_symlink():
         shutil.rmtree(path, ignore_errors=True)
     else:
         path.unlink(missing_ok=True)
 
 
-# --- Writing files ---------------------------------------------------------------------------------
+# --- Writing files -------------------------------------------------------------------------------
 
 
-def to_json(value):
-    """Arrays and numpy scalars as plain lists and numbers, for `json.dumps`; NaN and infinities
-    (a diverged run's) as None, JSON's null, for strict JSON has no such numbers."""
+def to_json(value: Any) -> Any:
+    """`value` with arrays and numpy scalars as plain lists and numbers, for `json.dumps`.
+
+    NaN and infinities (a diverged run's) become None, JSON's null, for strict JSON has no such
+    numbers.
+
+    Args:
+      value: dicts (keys become strings), lists and tuples (become lists), arrays, numbers and
+        whatever else `json.dumps` takes, nested.
+
+    Returns:
+      The same tree of Python dicts, lists, numbers, strings and None.
+    """
     if isinstance(value, dict):
         return {str(k): to_json(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -281,13 +344,23 @@ def to_json(value):
     return value
 
 
-def write_json(path, value):
-    """Writes `value` as strict JSON (`to_json`), which every JSON reader reads."""
+def write_json(path: StrPath, value: Any) -> None:
+    """Writes `value` as strict JSON (`to_json`), which every JSON reader reads.
+
+    Args:
+      path: the file to (over)write.
+      value: what `to_json` takes.
+    """
     pathlib.Path(path).write_text(json.dumps(to_json(value), indent=2, allow_nan=False) + "\n")
 
 
-def write_csv(path, columns):
-    """Writes `{name: [N] values}` as a CSV with one row per index."""
+def write_csv(path: StrPath, columns: Mapping[str, npt.ArrayLike]) -> None:
+    """Writes columns as a CSV file: a header of their names, then one row per index.
+
+    Args:
+      path: the file to (over)write.
+      columns: `[N]` values by name, each an array or a list.
+    """
     buffer = io.StringIO()
     writer = csv.writer(buffer)
     writer.writerow(columns)
@@ -299,7 +372,7 @@ def write_csv(path, columns):
 
 
 @contextlib.contextmanager
-def atomic_path(path):
+def atomic_path(path: StrPath) -> Iterator[pathlib.Path]:
     """Yields a temporary path beside `path`; on success, moves the file written there onto `path`.
 
     The temporary name ends with the same suffix as `path`, so writers that pick a format from
@@ -337,9 +410,12 @@ def atomic_path(path):
 _TEMPORARY = re.compile(r"\..*\.[0-9a-f]{12}\.tmp.*", re.DOTALL)
 
 
-def remove_stale_temporaries(directory):
-    """Removes the temporary files that `atomic_path` left in `directory` in processes that were
-    killed; files that a process is writing (and so holds locked) stay."""
+def remove_stale_temporaries(directory: StrPath) -> None:
+    """Removes the temporary files that killed processes' `atomic_path` left in `directory`.
+
+    Files that a process is writing (and so holds locked) stay. Nothing happens where `directory`
+    does not exist, or where the system has no advisory locks (Windows).
+    """
     if fcntl is None or not pathlib.Path(directory).is_dir():
         return
     for path in pathlib.Path(directory).iterdir():
@@ -358,10 +434,19 @@ def remove_stale_temporaries(directory):
             os.close(fd)
 
 
-def check_writable(folder, what):
-    """Raises a ValueError naming the argument `what` unless a file can be created in the
-    directory `folder`: tried (and removed), for permissions alone do not tell (a read-only
-    file system, /proc, root)."""
+def check_writable(folder: StrPath, what: str) -> None:
+    """Checks that a file can be created in the directory `folder`.
+
+    A file is created and removed, for permissions alone do not tell (a read-only file system,
+    /proc, root).
+
+    Args:
+      folder: an existing directory.
+      what: the name of the argument that gave it, which the message starts with.
+
+    Raises:
+      ValueError: no file can be created there.
+    """
     try:
         with tempfile.TemporaryFile(dir=folder):
             pass
@@ -369,9 +454,21 @@ def check_writable(folder, what):
         raise ValueError(f"{what}: cannot write in {folder} ({error.strerror})") from None
 
 
-def private_directory(path):
-    """Creates the directory `path` and its missing parents, each for the user alone (0700),
-    as the XDG base directory specification asks of cache directories."""
+def private_directory(path: StrPath) -> pathlib.Path:
+    """Creates the directory `path` and its missing parents, each for the user alone (0700).
+
+    As the XDG base directory specification asks of cache directories. Existing ones are left
+    as they are.
+
+    Args:
+      path: the directory.
+
+    Returns:
+      `path` as a `pathlib.Path`.
+
+    Raises:
+      OSError: a directory cannot be created.
+    """
     path = pathlib.Path(path)
     for folder in [*reversed(path.parents), path]:
         if not folder.is_dir():
@@ -380,7 +477,8 @@ def private_directory(path):
     return path
 
 
-def _fsync(path, flags):
+def _fsync(path: StrPath, flags: int) -> None:
+    """Flushes the file `path`, opened with `flags`, to disk."""
     fd = os.open(path, flags)
     try:
         os.fsync(fd)
@@ -388,11 +486,12 @@ def _fsync(path, flags):
         os.close(fd)
 
 
-def _fsync_directory(path):
+def _fsync_directory(path: StrPath) -> None:
+    """Flushes the directory `path`'s entries to disk (where the system can open a directory)."""
     _fsync(path, getattr(os, "O_DIRECTORY", os.O_RDONLY))
 
 
-def atomic_write(path, data):
+def atomic_write(path: StrPath, data: bytes | str) -> None:
     """Writes `data` (bytes, or str as UTF-8) to `path` so that readers see the old or the new file.
 
     Args:

@@ -1,5 +1,7 @@
-"""What training needs in memory, estimated from its settings alone, before anything is traced or
-allocated: settings far beyond the machine end in one line, not in a crash or a hang.
+"""What training needs in memory, estimated from its settings alone.
+
+The estimate comes before anything is traced or allocated: settings far beyond the machine end in
+one line, not in a crash or a hang.
 
 The estimate (`needed_bytes`) is a host's, in floats of JAX's default dtype:
 
@@ -19,25 +21,28 @@ cannot see without tracing it, as does the device memory of an accelerator, whic
 
 import decimal
 import os
+from typing import Any
 
+import flax.linen as nn
 import jax
 import numpy as np
 
 from jaxpg import losses, policies, rollout, schedule
 from jaxpg.programs import ITERATIONS_PER_CALL
+from jaxpg.train_config import TrainConfig
 from jaxpg.validation import check_int
 
-# Per step of an episode: XLA's buffers for one iteration of one run came to 15 + 4 * units floats
-# (35.3 for the book's 5 units, 272 for 64; 1000 episodes of 200 steps, `memory_analysis()`).
+# Per step of an episode, XLA's buffers for one iteration of one run: STEP_FLOATS + UNIT_FLOATS *
+# hidden units, fitted to `memory_analysis()` (docs/performance.md).
 STEP_FLOATS = 15
 UNIT_FLOATS = 4
 PARAMETER_COPIES = 5  # the parameters, their gradient, two moments and the trained copy returned
 METRIC_FLOATS = 16  # six metrics and up to two of a loss's own, kept twice (trained, returned)
-CALL_BYTES = 6000  # a run alone's 300000 iterations took 600 bytes each, 10 to a call
+CALL_BYTES = 6000  # the host's bookkeeping of one call (docs/performance.md)
 USABLE_SHARE = 0.8  # of the machine's memory: the process and the system need the rest
 
 
-def machine_memory():
+def machine_memory() -> int | None:
     """Bytes of physical memory (`os.sysconf`); None where the system does not say."""
     try:
         return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
@@ -45,7 +50,7 @@ def machine_memory():
         return None
 
 
-def needed_bytes(config, runs=1):
+def needed_bytes(config: TrainConfig, runs: int = 1) -> int:
     """Estimated bytes of memory that training `runs` runs of `config` needs (module docstring).
 
     Args:
@@ -71,7 +76,7 @@ def needed_bytes(config, runs=1):
     return (at_once * steps + runs * kept) * itemsize + blocks * calls * CALL_BYTES
 
 
-def _parameters(network):
+def _parameters(network: nn.Module | None) -> int:
     """How many parameters a `policies.PolicyNetwork` has; 0 for any other module or None."""
     if not isinstance(network, policies.PolicyNetwork):
         return 0
@@ -79,14 +84,17 @@ def _parameters(network):
     return sum((inputs + 1) * outputs for inputs, outputs in zip(sizes[:-1], sizes[1:]))
 
 
-def check(config, runs=1, what="1 run"):
-    """Raises a ValueError, in one line, when training `runs` runs of `config` needs more memory
-    (`needed_bytes`) than `USABLE_SHARE` of the machine's.
+def check(config: TrainConfig, runs: int = 1, what: str = "1 run") -> None:
+    """Checks that the machine has the memory to train `runs` runs of `config`.
 
     Args:
       config: the `TrainConfig`.
       runs: how many runs train, in one chunk.
       what: how the message names the runs, such as "64 seeds x 2 settings".
+
+    Raises:
+      ValueError: in one line, when training needs more memory (`needed_bytes`) than
+        `USABLE_SHARE` of the machine's.
     """
     have = machine_memory()
     needed = needed_bytes(config, runs)
@@ -99,9 +107,16 @@ def check(config, runs=1, what="1 run"):
             f"may use {USABLE_SHARE:.0%}")
 
 
-def check_memory_budget(memory_budget):
-    """Raises a ValueError unless `memory_budget` is None or a positive integer number of bytes
-    within the machine's memory."""
+def check_memory_budget(memory_budget: Any) -> None:
+    """Checks a sweep's `memory_budget`.
+
+    Args:
+      memory_budget: None, or bytes of memory.
+
+    Raises:
+      ValueError: unless it is None or a positive integer number of bytes within the machine's
+        memory.
+    """
     if memory_budget is None:
         return
     check_int("memory_budget", memory_budget)
@@ -112,9 +127,11 @@ def check_memory_budget(memory_budget):
                          f"{format_bytes(have)}, or none")
 
 
-def format_bytes(count):
-    """`count` bytes in the largest binary unit up to EiB that keeps a number of at least 1, to
-    four digits: `23.52 GiB`; exactly, for numbers of any size (a float would overflow)."""
+def format_bytes(count: int) -> str:
+    """`count` bytes in the largest binary unit up to EiB that keeps a number of at least 1.
+
+    To four digits, `23.52 GiB`; exactly, for numbers of any size (a float would overflow).
+    """
     count = int(count)
     units = ["bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"]
     power = min(max(count.bit_length() - 1, 0) // 10, len(units) - 1)

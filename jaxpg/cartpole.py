@@ -5,15 +5,21 @@ Operation order follows Gymnasium's `step` exactly, so that in float64 the two a
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING, Any, Protocol, Self, TypeVar, overload
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxpg.types import ArrayLike, Observation, PRNGKey
 from jaxpg.validation import check_choice
 
 INTEGRATORS = ("euler", "semi-implicit")
+
+# The values that the pieces of `step` compute with, all of one kind: JAX arrays inside `step`,
+# numpy arrays or scalars in the Gymnasium adapters (`jaxpg.gym`).
+Value = TypeVar("Value", jax.Array, np.ndarray, np.floating)
 
 
 @struct.dataclass
@@ -22,7 +28,23 @@ class CartPoleParams:
 
     `total_mass` and `polemass_length` are derived from the masses and the length, never stored, so
     that vmapping over `masspole` changes them too. The integrator and the reward scheme change the
-    program, so they are static fields.
+    program, so they are static fields. Each number is a Python number, or an array of any shape
+    (under `vmap`, a traced one); `check_params` validates them.
+
+    Attributes:
+      gravity: the acceleration of gravity, m/s^2.
+      masscart: the cart's mass, kg.
+      masspole: the pole's mass, kg.
+      length: half the pole's length, m.
+      force_mag: the magnitude of the force of a push, N.
+      tau: seconds between state updates.
+      x_threshold: the episode terminates once |x| exceeds it, m.
+      theta_threshold_radians: the episode terminates once |theta| exceeds it.
+      reset_low: the low bound of each initial value, drawn uniform in [reset_low, reset_high).
+      reset_high: the high bound of each initial value.
+      max_steps: Gymnasium's TimeLimit: an episode is truncated once this many steps were taken.
+      integrator: static: "euler" (Gymnasium's default) or "semi-implicit" (velocities first).
+      sutton_barto_reward: static: reward 0 per step and -1 on termination, instead of 1 per step.
     """
 
     gravity: float = 9.8
@@ -39,13 +61,48 @@ class CartPoleParams:
     integrator: str = struct.field(pytree_node=False, default="euler")
     sutton_barto_reward: bool = struct.field(pytree_node=False, default=False)
 
+    if TYPE_CHECKING:  # flax.struct adds it to the class
+        def replace(self, **updates: Any) -> Self:
+            """A copy with the fields `updates` names replaced."""
+            ...
+
     @property
-    def total_mass(self):
+    def total_mass(self) -> float:
+        """`masspole + masscart`."""
         return self.masspole + self.masscart
 
     @property
-    def polemass_length(self):
+    def polemass_length(self) -> float:
+        """`masspole * length`."""
         return self.masspole * self.length
+
+
+class Physics(Protocol):
+    """What `accelerations` reads of its `env_params`: a `CartPoleParams`, or numpy values of it.
+
+    Attributes:
+      gravity: the acceleration of gravity.
+      masspole: the pole's mass.
+      length: half the pole's length.
+      polemass_length: `masspole * length`.
+      total_mass: `masspole + masscart`.
+    """
+
+    # Any: a Python number, a numpy value or a JAX array, which every `Value` computes with.
+    @property
+    def gravity(self) -> Any: ...
+
+    @property
+    def masspole(self) -> Any: ...
+
+    @property
+    def length(self) -> Any: ...
+
+    @property
+    def polemass_length(self) -> Any: ...
+
+    @property
+    def total_mass(self) -> Any: ...
 
 
 V1 = CartPoleParams(max_steps=500)
@@ -56,7 +113,17 @@ REWARD_THRESHOLDS = {"CartPole-v1": 475.0, "CartPole-v0": 195.0}
 
 @struct.dataclass
 class CartPoleState:
-    """The four physical values and the number of steps taken in the episode."""
+    """The four physical values and the number of steps taken in the episode.
+
+    Every leaf has the same batch shape `[...]` (`[]` for one environment).
+
+    Attributes:
+      x: the cart's position, float.
+      x_dot: the cart's velocity, float of the same dtype.
+      theta: the pole's angle from upright, radians, positive to the right.
+      theta_dot: the pole's angular velocity.
+      time: int32 steps taken in the episode.
+    """
 
     x: jax.Array
     x_dot: jax.Array
@@ -65,8 +132,19 @@ class CartPoleState:
     time: jax.Array
 
     @classmethod
-    def from_array(cls, values, time=0):
-        """Builds a state from `[..., 4]` values (x, x_dot, theta, theta_dot), e.g. Gymnasium's state."""
+    def from_array(cls, values: ArrayLike, time: ArrayLike = 0) -> Self:
+        """Builds a state from values (x, x_dot, theta, theta_dot), e.g. Gymnasium's state.
+
+        Args:
+          values: `[..., 4]` values; integers become the default float dtype.
+          time: int steps taken, broadcast to `[...]`.
+
+        Returns:
+          A state with `[...]` leaves.
+
+        Raises:
+          ValueError: if `values` is not shaped `[..., 4]`.
+        """
         values = jnp.asarray(values)
         if values.ndim == 0 or values.shape[-1] != 4:
             raise ValueError(
@@ -78,13 +156,24 @@ class CartPoleState:
         time = jnp.broadcast_to(jnp.asarray(time, jnp.int32), values.shape[:-1])
         return cls(values[..., 0], values[..., 1], values[..., 2], values[..., 3], time)
 
-    def to_array(self, axis=-1):
+    def to_array(self, axis: int = -1) -> jax.Array:
         """The physical values as `[..., 4]`, or with the four values on another `axis`."""
         return jnp.stack([self.x, self.x_dot, self.theta, self.theta_dot], axis=axis)
 
 
-def make_params(env="CartPole-v1", **overrides):
-    """A preset by name (`CartPole-v1` or `CartPole-v0`), with any field overridden, validated."""
+def make_params(env: str = "CartPole-v1", **overrides: Any) -> CartPoleParams:
+    """A preset by name, with any field overridden, validated.
+
+    Args:
+      env: `CartPole-v1` or `CartPole-v0`.
+      **overrides: values of `CartPoleParams` fields.
+
+    Returns:
+      The `CartPoleParams`.
+
+    Raises:
+      ValueError: for an unknown preset or field, or an invalid value (`check_params`).
+    """
     check_choice("env", env, PRESETS, "preset")
     unknown = set(overrides) - set(CartPoleParams.__dataclass_fields__)
     if unknown:
@@ -103,10 +192,15 @@ _NUMBERS = tuple(field.name for field in dataclasses.fields(CartPoleParams)
 MAX_STEPS_LIMIT = 2**31  # episodes count their steps in int32
 
 
-def check_params(env_params):
-    """Raises a ValueError naming the first invalid field: a value that is not finite, a mass,
-    length, force, time step or threshold at or below 0, a `max_steps` that is not an integer in
-    [1, MAX_STEPS_LIMIT), or reset bounds out of order. Values under a trace are skipped."""
+def check_params(env_params: CartPoleParams) -> None:
+    """Checks every concrete value of `env_params`; values under a trace are skipped.
+
+    Raises:
+      ValueError: naming the first invalid field: a value that is not finite, a mass, length,
+        force, time step or threshold at or below 0, a `max_steps` that is not an integer in
+        [1, MAX_STEPS_LIMIT), reset bounds out of order, an unknown integrator, or `env_params`
+        not a `CartPoleParams`.
+    """
     if not isinstance(env_params, CartPoleParams):
         raise ValueError(f"env_params: expected a CartPoleParams, got {type(env_params).__name__}")
     check_choice("integrator", env_params.integrator, INTEGRATORS)
@@ -128,23 +222,27 @@ def check_params(env_params):
         raise ValueError(f"reset_low: must be below reset_high, got {low} >= {high}")
 
 
-def _concrete(value):
+def _concrete(value: ArrayLike) -> np.ndarray | None:
     """The value as numpy, or None when it is traced (inside jit, vmap or grad)."""
     if isinstance(value, jax.core.Tracer):
         return None
     return np.asarray(value)
 
 
-def observe(state):
+def observe(state: CartPoleState) -> Observation:
     """The observation `[..., 4]` of a state, in the state's float dtype."""
     return state.to_array()
 
 
-def reset(key, env_params):
+def reset(key: PRNGKey, env_params: CartPoleParams) -> tuple[Observation, CartPoleState]:
     """Samples an initial state, each value uniform in [reset_low, reset_high).
 
+    Args:
+      key: PRNG key.
+      env_params: `CartPoleParams`.
+
     Returns:
-      (obs `[4]`, state)
+      (obs `[4]`, state with `[]` leaves), in the default float dtype.
     """
     check_params(env_params)
     values = jax.random.uniform(
@@ -154,13 +252,23 @@ def reset(key, env_params):
     return observe(state), state
 
 
-def step(state, action, env_params):
+def step(state: CartPoleState, action: ArrayLike, env_params: CartPoleParams
+         ) -> tuple[Observation, CartPoleState, jax.Array, jax.Array, jax.Array]:
     """Advances one step of `tau` seconds; action 1 pushes right, 0 pushes left.
 
+    Args:
+      state: `CartPoleState` with `[...]` leaves.
+      action: int `[...]` (or broadcasting against the state), each 0 or 1.
+      env_params: `CartPoleParams`.
+
     Returns:
-      (obs, state, reward, terminated, truncated). A fall on the step that reaches `max_steps` is
-      both terminated and truncated. The reward is 1 on every step, including the terminating one;
-      with `sutton_barto_reward`, 0 per step and -1 on termination.
+      (obs `[..., 4]`, state, reward `[...]` in the state's float dtype, terminated `[...]` bool,
+      truncated `[...]` bool). A fall on the step that reaches `max_steps` is both terminated and
+      truncated. The reward is 1 on every step, including the terminating one; with
+      `sutton_barto_reward`, 0 per step and -1 on termination.
+
+    Raises:
+      ValueError: outside a trace, for invalid `env_params` or an action other than 0 or 1.
     """
     check_params(env_params)
     _check_action(action)
@@ -186,8 +294,20 @@ def step(state, action, env_params):
 # step in numpy with them.
 
 
-def accelerations(theta_dot, force, sintheta, costheta, env_params):
-    """(xacc, thetaacc): the cart's and the pole's accelerations, in Gymnasium's operation order."""
+def accelerations(theta_dot: Value, force: Value | float, sintheta: Value, costheta: Value,
+                  env_params: Physics) -> tuple[Value, Value]:
+    """The cart's and the pole's accelerations, in Gymnasium's operation order.
+
+    Args:
+      theta_dot: the pole's angular velocity `[...]`.
+      force: the force of the push `[...]`, `force_mag` signed.
+      sintheta: the sine of the pole's angle `[...]`.
+      costheta: its cosine `[...]`.
+      env_params: `CartPoleParams`, or its numbers as numpy values.
+
+    Returns:
+      (xacc `[...]`, thetaacc `[...]`).
+    """
     p = env_params
     temp = (force + p.polemass_length * (theta_dot * theta_dot) * sintheta) / p.total_mass
     thetaacc = (p.gravity * sintheta - costheta * temp) / (
@@ -197,8 +317,25 @@ def accelerations(theta_dot, force, sintheta, costheta, env_params):
     return xacc, thetaacc
 
 
-def integrate(x, x_dot, theta, theta_dot, xacc, thetaacc, env_params):
-    """(x, x_dot, theta, theta_dot) `tau` seconds later, by the integrator of `env_params`."""
+def integrate(x: Value, x_dot: Value, theta: Value, theta_dot: Value, xacc: Value,
+              thetaacc: Value, env_params: CartPoleParams) -> tuple[Value, Value, Value, Value]:
+    """(x, x_dot, theta, theta_dot) `tau` seconds later, by the integrator of `env_params`.
+
+    Euler moves the positions by the old velocities; "semi-implicit" updates the velocities
+    first and moves the positions by the new ones.
+
+    Args:
+      x: the cart's position `[...]`.
+      x_dot: its velocity `[...]`.
+      theta: the pole's angle `[...]`.
+      theta_dot: its angular velocity `[...]`.
+      xacc: the cart's acceleration `[...]` (`accelerations`).
+      thetaacc: the pole's angular acceleration `[...]`.
+      env_params: `CartPoleParams`, whose `tau` and `integrator` are read.
+
+    Returns:
+      (x, x_dot, theta, theta_dot), `[...]` each.
+    """
     p = env_params
     if p.integrator == "euler":
         return (x + p.tau * x_dot, x_dot + p.tau * xacc,
@@ -208,22 +345,41 @@ def integrate(x, x_dot, theta, theta_dot, xacc, thetaacc, env_params):
     return x + p.tau * x_dot, x_dot, theta + p.tau * theta_dot, theta_dot
 
 
-def is_terminated(x, theta, env_params):
-    """Whether the cart left the track or the pole fell (strictly past the thresholds)."""
+@overload
+def is_terminated(x: jax.Array, theta: jax.Array, env_params: CartPoleParams) -> jax.Array: ...
+
+
+@overload
+def is_terminated(x: np.ndarray | np.floating, theta: np.ndarray | np.floating,
+                  env_params: CartPoleParams) -> np.ndarray | np.bool_: ...
+
+
+def is_terminated(x: jax.Array | np.ndarray | np.floating,
+                  theta: jax.Array | np.ndarray | np.floating,
+                  env_params: CartPoleParams) -> jax.Array | np.ndarray | np.bool_:
+    """Whether the cart left the track or the pole fell (strictly past the thresholds).
+
+    Args:
+      x: the cart's position `[...]`.
+      theta: the pole's angle `[...]`.
+      env_params: `CartPoleParams`, whose `x_threshold` and `theta_threshold_radians` are read.
+
+    Returns:
+      bool `[...]`.
+    """
     p = env_params
     return ((x < -p.x_threshold) | (x > p.x_threshold)
             | (theta < -p.theta_threshold_radians) | (theta > p.theta_threshold_radians))
 
 
-def sincos(theta):
-    """(sin, cos) of `theta`: in float32 by vectorisable arithmetic, else `jnp.sin`, `jnp.cos`.
+def sincos(theta: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(sin, cos) of `theta` `[...]`: in float32 by vectorisable arithmetic, else by `jnp`.
 
-    XLA on CPU computes float32 sine and cosine with a scalar library call per element, which costs
-    more than the rest of a CartPole step. This is Cephes' `sinf`/`cosf`: the angle less the nearest
-    multiple of pi/2 (`reduce_angle`: subtracted in three parts, exact for |theta| < 2**15), then a
-    polynomial on [-pi/4, pi/4] (`sincos_polynomials`). Its absolute error is below 1e-7 over
-    |theta| < 1e5 (XLA's is 3e-8).
+    The float32 path is Cephes' `sinf`/`cosf`: the angle less the nearest multiple of pi/2
+    (`reduce_angle`: subtracted in three parts, exact for |theta| < 2**15), then a polynomial on
+    [-pi/4, pi/4] (`sincos_polynomials`). Its absolute error is below 1e-7 over |theta| < 1e5.
     """
+    # XLA's float32 sin and cos on CPU are a scalar library call per element (docs/performance.md).
     if theta.dtype != jnp.float32:
         return jnp.sin(theta), jnp.cos(theta)
     quarter_turns = jnp.round(theta * QUARTER_TURN_PER_RADIAN)
@@ -242,14 +398,14 @@ _COS = (_f32(0.5), _f32(4.166664568298827e-2), _f32(-1.388731625493765e-3),
         _f32(2.443315711809948e-5))
 
 
-def reduce_angle(theta, quarter_turns):
+def reduce_angle(theta: Value, quarter_turns: Value) -> Value:
     """The float32 `theta` less `quarter_turns` quarter turns (`sincos`)."""
-    r = theta - quarter_turns * _PI_2[0]
+    r: Value = theta - quarter_turns * _PI_2[0]
     r = r - quarter_turns * _PI_2[1]
     return r - quarter_turns * _PI_2[2]
 
 
-def sincos_polynomials(r):
+def sincos_polynomials(r: Value) -> tuple[Value, Value]:
     """(sin, cos) of the float32 `r` in [-pi/4, pi/4], by Cephes' polynomials (`sincos`)."""
     z = r * r
     sin_r = r + r * z * (_SIN[0] + z * (_SIN[1] + z * _SIN[2]))
@@ -257,7 +413,7 @@ def sincos_polynomials(r):
     return sin_r, cos_r
 
 
-def _check_action(action):
+def _check_action(action: ArrayLike) -> None:
     """In eager use, rejects any action other than 0 or 1."""
     value = _concrete(action)
     if value is not None and not np.all((value == 0) | (value == 1)):

@@ -31,14 +31,20 @@ It is written with `atomic_files.atomic_write`: a crash mid-write leaves the pre
 import dataclasses
 import functools
 import pathlib
-from typing import NamedTuple
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict, cast
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from jaxpg import atomic_files, cartpole, iteration, policies, train_config
+from jaxpg import atomic_files, cartpole, iteration, losses, policies, train_config
+from jaxpg.types import Params
+
+if TYPE_CHECKING:
+    from jaxpg import sweeps
 
 FORMAT = "jaxpg-checkpoint"
 FORMAT_VERSION = 2  # the newest this reads; one run's file is still written as version 1
@@ -50,17 +56,31 @@ class Checkpoint(NamedTuple):
     """A loaded checkpoint."""
 
     policy_params: dict  # the policy network's parameters, as jax arrays
-    config: train_config.TrainConfig
+    config: train_config.TrainConfig  # the config that trained it
     version: str  # the jaxpg version that wrote it
-    metrics: iteration.Metrics | None
-    grid: list | None = None  # a sweep's G settings; its arrays are then `[G, S, ...]`
-    seeds: np.ndarray | None = None  # a sweep's S seeds
+    metrics: iteration.Metrics | None  # the run's metrics `[I]`, where they were saved
+    # A sweep's G settings {field: value}; its arrays are then `[G, S, ...]`.
+    grid: list[dict[str, float]] | None = None
+    seeds: np.ndarray | None = None  # a sweep's S seeds, int64
+
+
+class SweepRuns(TypedDict):
+    """The runs of a sweep's checkpoint (its `runs` entry): run (g, s) is seed s under setting g."""
+
+    grid: list[dict[str, float]]  # the G settings, maps of field to number
+    seeds: list[int]  # the S seeds
 
 
 # --- Saving --------------------------------------------------------------------------------------
 
 
-def save(path, policy_params, config, metrics=None, runs=None):
+def save(
+    path: str | pathlib.Path,
+    policy_params: Params,
+    config: train_config.TrainConfig,
+    metrics: iteration.Metrics | None = None,
+    runs: SweepRuns | None = None,
+) -> pathlib.Path:
     """Saves a policy with its `TrainConfig` (and optionally its metrics) as one file, atomically.
 
     Args:
@@ -74,6 +94,11 @@ def save(path, policy_params, config, metrics=None, runs=None):
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for a `config` that is no `TrainConfig`, `metrics` that are no `Metrics`,
+        parameters of other shapes than `config`'s network's, or a config field that cannot be
+        saved.
     """
     if not isinstance(config, train_config.TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
@@ -97,33 +122,51 @@ def save(path, policy_params, config, metrics=None, runs=None):
     return path
 
 
-def save_sweep(path, swept, config):
+def save_sweep(
+    path: str | pathlib.Path, swept: "sweeps.SweepResult", config: train_config.TrainConfig
+) -> pathlib.Path:
     """Saves every run of a sweep (`SweepResult`) in one file, `[G, S, ...]` (`save`'s `runs`).
+
+    Args:
+      path: the file to write, or an existing directory to write `policies.msgpack` in.
+      swept: the sweep's result.
+      config: the `TrainConfig` that the sweep shared.
 
     Returns:
       The `pathlib.Path` written: `path`, or `path/policies.msgpack` for a directory.
     """
-    runs = {"grid": [{name: float(value) for name, value in setting.items()}
-                     for setting in swept.grid],
-            "seeds": [int(seed) for seed in swept.seeds]}
+    runs = SweepRuns(grid=[{name: float(value) for name, value in setting.items()}
+                           for setting in swept.grid],
+                     seeds=[int(seed) for seed in swept.seeds])
     return save(path, swept.policy_params, config, swept.metrics, runs)
 
 
-def _grid_shape(runs):
+def _grid_shape(runs: SweepRuns | None) -> tuple[int, ...]:
     """The leading axes `(G, S)` of a sweep's arrays (`save`'s `runs`), `()` for one run."""
     return () if runs is None else (len(runs["grid"]), len(runs["seeds"]))
 
 
-def _jaxpg_version():
+def _jaxpg_version() -> str:
+    """The version of jaxpg that writes the file."""
     # Imported here: jaxpg/__init__.py imports the modules that define the API before the version.
     import jaxpg
 
     return jaxpg.__version__
 
 
-def config_to_dict(config):
-    """A `TrainConfig` as plain msgpack-able values (the `config` entry of a checkpoint)."""
-    fields = {}
+def config_to_dict(config: train_config.TrainConfig) -> dict[str, Any]:
+    """A `TrainConfig` as plain msgpack-able values (the `config` entry of a checkpoint).
+
+    Args:
+      config: the config.
+
+    Returns:
+      Its fields by name, as the module's docstring lays out the `config` entry.
+
+    Raises:
+      ValueError: naming the field, for a number that is an array rather than a scalar.
+    """
+    fields: dict[str, Any] = {}
     for field in dataclasses.fields(config):
         value = getattr(config, field.name)
         if field.name == "hidden":
@@ -143,7 +186,7 @@ def config_to_dict(config):
     return fields
 
 
-def _scalar(value, name):
+def _scalar(value: Any, name: str) -> str | bool | int | float:
     """A Python scalar from a number, or a 0-d numpy/jax array."""
     if isinstance(value, (str, bool, int, float)):
         return value
@@ -158,16 +201,19 @@ def _scalar(value, name):
 _OBJECTS = ("policy", "loss", "optimizer")
 
 
-def _describe(value):
-    """A config field's value as saved: None or a name as it is; an object as its class or
-    function's qualified name (with its fields, for a flax module)."""
+def _describe(value: Any) -> str | dict[str, str] | None:
+    """A config field's value as saved: None or a name as it is; an object as its description.
+
+    The description is the class or function's qualified name, and its repr (with its fields, for
+    a flax module).
+    """
     if value is None or isinstance(value, str):
         return value
     kind = value if callable(value) and not hasattr(value, "__dataclass_fields__") else type(value)
     return {"object": f"{kind.__module__}.{kind.__qualname__}", "repr": repr(value)}
 
 
-def _require_objects(fields, objects):
+def _require_objects(fields: object, objects: Mapping[str, Any]) -> None:
     """Raises a ValueError naming a field saved as a user's object that `objects` lacks."""
     for name in _OBJECTS:
         if isinstance(fields, dict) and isinstance(fields.get(name), dict) and (
@@ -177,13 +223,22 @@ def _require_objects(fields, objects):
                 f"checkpoint.load(path, {name}=...)")
 
 
-def config_from_dict(fields, objects=None):
+def config_from_dict(
+    fields: Mapping[str, Any], objects: Mapping[str, Any] | None = None
+) -> train_config.TrainConfig:
     """The `TrainConfig` of a checkpoint's `config` entry.
 
     Args:
       fields: the entry.
       objects: the policy module, loss or optimizer function by field name, for the fields saved
         as a description of the user's object; a ValueError names the field where one is missing.
+
+    Returns:
+      The config.
+
+    Raises:
+      ValueError: for a user's object missing from `objects`, an unknown field, or a field that
+        `TrainConfig` refuses.
     """
     fields = dict(fields)
     objects = objects or {}
@@ -201,9 +256,13 @@ def config_from_dict(fields, objects=None):
     return train_config.TrainConfig(**fields)
 
 
-def _check_params_match(policy_params, config, where, lead=()):
-    """Raises a ValueError unless `policy_params` has the shapes of `config`'s policy's own, after
-    the leading axes `lead` (a sweep's `(G, S)`)."""
+def _check_params_match(
+    policy_params: Params, config: train_config.TrainConfig, where: str, lead: tuple[int, ...] = ()
+) -> None:
+    """Raises a ValueError unless `policy_params` has the shapes of `config`'s policy's own.
+
+    The shapes are compared after the leading axes `lead` (a sweep's `(G, S)`).
+    """
     shapes = jax.tree.map(np.shape, serialization.to_state_dict(policy_params))
     want = jax.tree.map(lambda leaf: (*lead, *leaf.shape), jax.eval_shape(
         lambda key: policies.init_network(key, config.network),
@@ -218,9 +277,19 @@ def _check_params_match(policy_params, config, where, lead=()):
 # --- Loading -------------------------------------------------------------------------------------
 
 
-def resolve(path):
-    """The checkpoint file that `path` names: the path itself, or `DIR/policy.msgpack`, or where
-    that is missing, a sweep's `DIR/policies.msgpack`."""
+def resolve(path: str | pathlib.Path) -> pathlib.Path:
+    """The checkpoint file that `path` names.
+
+    Args:
+      path: a file, or a directory.
+
+    Returns:
+      The path itself, or `DIR/policy.msgpack`, or where that is missing, a sweep's
+      `DIR/policies.msgpack`.
+
+    Raises:
+      FileNotFoundError: there is no such file.
+    """
     path = pathlib.Path(path)
     if path.is_dir():
         path = path / (SWEEP_FILENAME if (path / SWEEP_FILENAME).is_file()
@@ -230,7 +299,12 @@ def resolve(path):
     return path
 
 
-def load(path, policy=None, loss=None, optimizer=None):
+def load(
+    path: str | pathlib.Path,
+    policy: nn.Module | None = None,
+    loss: losses.LossFn | None = None,
+    optimizer: train_config.OptimizerFactory | None = None,
+) -> Checkpoint:
     """Loads a checkpoint written by `save`.
 
     Args:
@@ -290,8 +364,13 @@ def load(path, policy=None, loss=None, optimizer=None):
     return Checkpoint(policy_params, config, version, metrics, grid, seeds)
 
 
-def select_run(loaded, g, s):
+def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
     """Run (g, s) of a sweep's checkpoint: seed `loaded.seeds[s]` under setting `loaded.grid[g]`.
+
+    Args:
+      loaded: a sweep's checkpoint, as `load` gives it.
+      g: the index of the setting, in [0, G).
+      s: the index of the seed, in [0, S).
 
     Returns:
       A `Checkpoint` of that one run, its config with the run's own hyperparameters and physics.
@@ -301,15 +380,17 @@ def select_run(loaded, g, s):
     """
     if loaded.grid is None:
         raise ValueError("run: the checkpoint holds one run, not a sweep's")
-    grid_shape = (len(loaded.grid), len(loaded.seeds))
+    grid_shape = (len(loaded.grid), len(cast(np.ndarray, loaded.seeds)))  # a sweep's: both set
     if not all(0 <= i < n for i, n in zip((g, s), grid_shape)):
         raise ValueError(f"run: expected g in [0, {grid_shape[0]}) and s in "
                          f"[0, {grid_shape[1]}), got {g},{s}")
     setting = loaded.grid[g]
     physics = {name: setting[name] for name in train_config.PHYSICS if name in setting}
+    hyperparams: dict[str, Any] = {
+        name: setting[name] for name in train_config.HYPERPARAMETERS if name in setting}
     config = dataclasses.replace(
         loaded.config,
-        **{name: setting[name] for name in train_config.HYPERPARAMETERS if name in setting},
+        **hyperparams,
         env=loaded.config.env_params.replace(**physics) if physics else loaded.config.env)
     run = functools.partial(jax.tree.map, lambda leaf: leaf[g, s])
     return Checkpoint(run(loaded.policy_params), config, loaded.version,
@@ -319,9 +400,11 @@ def select_run(loaded, g, s):
 _FLOAT_DTYPES = (np.float32, np.float64)
 
 
-def _check_floats(tree, name, finite):
-    """Raises a ValueError naming the first leaf of `tree` that is not a float32 or float64 array
-    (or, where `finite`, holds a NaN or an infinity)."""
+def _check_floats(tree: object, name: str, finite: bool) -> None:
+    """Raises a ValueError naming the first leaf of `tree` that is not a float32 or float64 array.
+
+    Where `finite`, also the first that holds a NaN or an infinity.
+    """
     if not isinstance(tree, dict):
         raise ValueError(f"{name}: expected a map, got {type(tree).__name__}")
     for key, leaf in tree.items():

@@ -1,7 +1,8 @@
 """The `jaxpg` command: train | sweep | evaluate | render | compare | conformance | reproduce.
 
 Every argument is checked before anything compiles; a bad one ends the command with status 2 and
-one line on stderr, never a traceback.
+one line on stderr, never a traceback. `main` is the installed command; `run_command` runs one
+command in this process and returns its exit status.
 """
 
 import argparse
@@ -13,13 +14,25 @@ import re
 import signal
 import sys
 import time
+import types
 import warnings
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any, NoReturn, TextIO, cast
 
 import numpy as np
 
 from jaxpg.validation import check_int
 
-PROG = "jaxpg"
+if TYPE_CHECKING:  # (the commands import jaxpg's modules when they run, not on import)
+    import flax.linen as nn
+
+    from jaxpg.evaluation import Robustness
+    from jaxpg.sweeps import SweepResult
+    from jaxpg.train_config import TrainConfig
+    from jaxpg.types import Params, Policy
+
+PROG = "jaxpg"  # the command's name, which its messages start with
+# The book's figures, which `jaxpg reproduce` prints beside jaxpg's.
 BOOK_BASIC_POLICY = (41.698, 8.389445512070509, 24.0, 63.0)  # mean, std, min, max, as printed
 BOOK_DISCOUNT = [-22.0, -40.0, -50.0]
 BOOK_NORMALIZED = [[-0.28435071, -0.86597718, -1.18910299], [1.26665318, 1.0727777]]
@@ -27,34 +40,41 @@ BOOK_LAST_ITERATION = 199.6  # "Iteration: 150/150, mean rewards: 199.6"
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message):
+    """An argument parser whose errors are one line on stderr and exit status 2, no usage."""
+
+    def error(self, message: str) -> NoReturn:
+        """Exits with status 2 and `message` on one line."""
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 # --- Argument types: each raises a one-line error naming what is allowed ---------------------
 
 
-def _int_list(text):
+def _int_list(text: str) -> tuple[int, ...]:
+    """`32,32` as integers; `''` as none (no hidden layer)."""
     if not text.strip():
         return ()  # `--hidden ''`: no hidden layer
     try:
         return tuple(int(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers, got {text!r}") from None
 
 
-def _float_list(text):
+def _float_list(text: str) -> list[float]:
+    """`0.003,0.01` as floats."""
     try:
         return [float(v) for v in text.split(",")]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers, got {text!r}") from None
 
 
 _BYTES = re.compile(r"(\d+(?:\.\d+)?)\s*([KMGT]?)(?:I?B)?", re.IGNORECASE)
 _BYTE_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 
 
-def _bytes(text):
+def _bytes(text: str) -> int:
     """`2G`, `512MB`, `1.5GiB` or plain bytes, as a number of bytes (K, M, G, T: powers of 1024)."""
     match = _BYTES.fullmatch(text.strip())
     # Exactly, as a fraction: a float would overflow to infinity on a long number.
@@ -65,30 +85,36 @@ def _bytes(text):
     return size
 
 
-def _physics(text):
+def _physics(text: str) -> tuple[float, float] | list[float]:
     """`0.5,1,2` (values: a sweep's axis) or `0.25:2.0` (a range to draw from per episode)."""
     low, colon, high = text.partition(":")
     if colon:
         try:
             return float(low), float(high)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a range LOW:HIGH, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected a range LOW:HIGH, got {text!r}") from None
     return _float_list(text)
 
 
-def _add_physics_args(parser, ranges=True):
+def _add_physics_args(parser: argparse.ArgumentParser, ranges: bool = True) -> None:
+    """Adds a flag per physics field (`--pole-length`, ...): values, and ranges where `ranges`."""
     from jaxpg.train_config import PHYSICS
 
     for name in PHYSICS:
         if ranges:
-            parser.add_argument(f"--{name.replace('_', '-')}", type=_physics, metavar="V[,V...]|LOW:HIGH",
+            parser.add_argument(f"--{name.replace('_', '-')}", type=_physics,
+                                metavar="V[,V...]|LOW:HIGH",
                                 help=f"{name}: values, or a range drawn per episode")
         else:
-            parser.add_argument(f"--{name.replace('_', '-')}", type=_float_list, metavar="V[,V...]",
-                                help=f"{name}: values; every combination of the flags' values is a setting")
+            parser.add_argument(f"--{name.replace('_', '-')}", type=_float_list,
+                                metavar="V[,V...]",
+                                help=f"{name}: values; every combination of the flags' values "
+                                "is a setting")
 
 
-def _physics_settings(args):
+def _physics_settings(
+        args: argparse.Namespace,
+) -> tuple[dict[str, list[float]], dict[str, tuple[float, float]]]:
     """({field: values} of the physics flags, {field: (low, high)} of their ranges)."""
     from jaxpg.train_config import PHYSICS
 
@@ -97,26 +123,39 @@ def _physics_settings(args):
             {name: v for name, v in given.items() if isinstance(v, tuple)})
 
 
-def _add_training_args(parser):
+def _add_training_args(parser: argparse.ArgumentParser) -> None:
+    """Adds the flags that `train` and `sweep` share, with `TrainConfig`'s defaults."""
     from jaxpg.losses import BUILT_IN
     from jaxpg.train_config import TrainConfig
 
     d = TrainConfig()
-    parser.add_argument("--iterations", type=int, default=d.iterations, help="updates (default %(default)s)")
-    parser.add_argument("--episodes", type=int, default=d.episodes, help="episodes per update (default %(default)s)")
-    parser.add_argument("--max-steps", type=int, default=d.max_steps, help="steps per episode (default %(default)s)")
-    parser.add_argument("--optimizer", default=d.optimizer, help="an optax optimizer (default %(default)s)")
-    parser.add_argument("--hidden", type=_int_list, default=d.hidden, help="hidden layer sizes, e.g. 5 or 32,32; '' for a linear policy (default 5)")
-    parser.add_argument("--loss", choices=list(BUILT_IN), default=d.loss, help="(default %(default)s)")
-    parser.add_argument("--activation", default=d.activation, help="hidden activation (default %(default)s)")
-    parser.add_argument("--env", default=d.env, help="CartPole-v1 or CartPole-v0 (default %(default)s)")
-    parser.add_argument("--solved-return", type=float, default=d.solved_return, help="mean return that counts as solved (default %(default)s)")
+    parser.add_argument("--iterations", type=int, default=d.iterations,
+                        help="updates (default %(default)s)")
+    parser.add_argument("--episodes", type=int, default=d.episodes,
+                        help="episodes per update (default %(default)s)")
+    parser.add_argument("--max-steps", type=int, default=d.max_steps,
+                        help="steps per episode (default %(default)s)")
+    parser.add_argument("--optimizer", default=d.optimizer,
+                        help="an optax optimizer (default %(default)s)")
+    parser.add_argument("--hidden", type=_int_list, default=d.hidden,
+                        help="hidden layer sizes, e.g. 5 or 32,32; '' for a linear policy "
+                        "(default 5)")
+    parser.add_argument("--loss", choices=list(BUILT_IN), default=d.loss,
+                        help="(default %(default)s)")
+    parser.add_argument("--activation", default=d.activation,
+                        help="hidden activation (default %(default)s)")
+    parser.add_argument("--env", default=d.env,
+                        help="CartPole-v1 or CartPole-v0 (default %(default)s)")
+    parser.add_argument("--solved-return", type=float, default=d.solved_return,
+                        help="mean return that counts as solved (default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
-    parser.add_argument("--no-cache", action="store_true", help="compile afresh; keep no compiled programs")
+    parser.add_argument("--no-cache", action="store_true",
+                        help="compile afresh; keep no compiled programs")
     _add_physics_args(parser)
 
 
-def _config(args, **hyperparams):
+def _config(args: argparse.Namespace, **hyperparams: Any) -> "TrainConfig":
+    """The `TrainConfig` of the training flags and the ranges of the physics flags."""
     from jaxpg.train_config import TrainConfig
 
     return TrainConfig(
@@ -134,12 +173,13 @@ def _config(args, **hyperparams):
     )
 
 
-def _enable_compilation_cache(disabled, whole_programs=False):
-    """Keeps compiled programs in the user's cache directory, so that the next process skips compiling.
+def _enable_compilation_cache(disabled: bool, whole_programs: bool = False) -> None:
+    """Keeps compiled programs in the user's cache directory, unless `disabled` (`--no-cache`).
 
-    `train` and `sweep` compile nothing but the training programs and keep them whole
-    (`executables`): a later process neither traces nor compiles them. The other commands use JAX's
-    persistent compilation cache. One process never uses both (`executables` says why).
+    The next process then skips compiling them. `train` and `sweep` compile nothing but the
+    training programs and keep them whole (`whole_programs`, `executables`): a later process
+    neither traces nor compiles them. The other commands use JAX's persistent compilation cache.
+    One process never uses both (`executables` says why).
     """
     if disabled:
         return
@@ -162,19 +202,32 @@ def _enable_compilation_cache(disabled, whole_programs=False):
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
-def _run_index(text):
+def _run_index(text: str) -> tuple[int, int]:
     """`g,s`: run (g, s) of a sweep, seed s under grid setting g (both counted from 0)."""
     try:
         g, s = (int(v) for v in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected g,s (two integers), got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected g,s (two integers), got {text!r}") from None
     return g, s
 
 
-def _load_policies(spec, run=None):
-    """`basic`, or a directory or file written by `jaxpg train` or `jaxpg sweep` (with `run`, one
-    of its runs): (the basic policy, or parameters stacked `[G, S, ...]`; their module or None;
-    a description)."""
+def _load_policies(
+        spec: str, run: tuple[int, int] | None = None,
+) -> tuple["Policy | Params", "nn.Module | None", str]:
+    """The policies of `--policy` (and `--run`).
+
+    Args:
+      spec: `basic`, or a directory or file written by `jaxpg train` or `jaxpg sweep`.
+      run: optional: (g, s), one run of a sweep's.
+
+    Returns:
+      (the basic policy, or parameters stacked `[G, S, ...]` (`[1, 1, ...]` for one run); their
+      module, or None for the basic policy; a description for the output).
+
+    Raises:
+      ValueError: `spec` names no checkpoint that loads, or `run` is given for the basic policy
+        or names no run of the sweep's.
+    """
     import jax
 
     from jaxpg import checkpoint, policies
@@ -190,8 +243,9 @@ def _load_policies(spec, run=None):
         raise ValueError(f"policy: {expected}, {spec} does not exist")
     loaded = checkpoint.load(spec)
     if loaded.grid is not None and run is None:
+        seeds = cast(np.ndarray, loaded.seeds)  # (a sweep's: given with its grid)
         return (loaded.policy_params, loaded.config.network,
-                f"the {len(loaded.grid)} x {len(loaded.seeds)} policies in {spec}")
+                f"the {len(loaded.grid)} x {len(seeds)} policies in {spec}")
     if run is not None:
         loaded = checkpoint.select_run(loaded, *run)
         spec = f"run {run[0]},{run[1]} of {spec}"
@@ -199,7 +253,7 @@ def _load_policies(spec, run=None):
             loaded.config.network, f"the policy in {spec}")
 
 
-def _one_policy(policies, network):
+def _one_policy(policies: "Policy | Params", network: "nn.Module | None") -> "Policy | None":
     """The policy of `_load_policies`'s parameters of one run; None where they hold several."""
     import jax
 
@@ -212,8 +266,12 @@ def _one_policy(policies, network):
     return network_policy(network, jax.tree.map(lambda leaf: leaf[0, 0], policies))
 
 
-def _load_policy(spec, run=None):
-    """One policy of `_load_policies`: (policy, description)."""
+def _load_policy(spec: str, run: tuple[int, int] | None = None) -> tuple["Policy", str]:
+    """One policy of `_load_policies`: (policy, description).
+
+    Raises:
+      ValueError: as `_load_policies`, or `spec` holds a sweep's runs and `run` is None.
+    """
     policies, network, description = _load_policies(spec, run)
     policy = _one_policy(policies, network)
     if policy is None:
@@ -224,7 +282,18 @@ def _load_policy(spec, run=None):
 # --- Commands --------------------------------------------------------------------------------
 
 
-def cmd_train(args):
+def cmd_train(args: argparse.Namespace) -> None:
+    """`jaxpg train`: trains one policy and writes its checkpoint, metrics and learning curve.
+
+    Writes `policy.msgpack`, `metrics.json`, `metrics.csv` and `learning_curve.png` into
+    `args.out`, all at once (`atomic_files.staged`).
+
+    Args:
+      args: the parsed arguments of `build_parser`.
+
+    Raises:
+      ValueError: a bad argument, before anything is written or compiled.
+    """
     from jaxpg import atomic_files, budget, checkpoint, plots
     from jaxpg.reinforce import first_nonfinite, train
     from jaxpg.sweeps import last_mean
@@ -242,7 +311,8 @@ def cmd_train(args):
             args.env, **{name: given[0] for name, given in values.items()}))
     check_int("seed", args.seed, 0, 2**32)
     budget.check(config)  # before anything is written, traced or allocated
-    out = atomic_files.claim(args.out)  # held until the results are in place: a second run is refused
+    # Held until the results are in place: a second run is refused.
+    out = atomic_files.claim(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     result = train(config, seed=args.seed, show_progress=not args.quiet)
@@ -257,7 +327,8 @@ def cmd_train(args):
                    "first_nonfinite_iteration": diverged if diverged >= 0 else None,
                    "metrics": metrics}
         atomic_files.write_json(stage / "metrics.json", summary)
-        atomic_files.write_csv(stage / "metrics.csv", {"iteration": np.arange(config.iterations), **metrics})
+        atomic_files.write_csv(stage / "metrics.csv",
+                               {"iteration": np.arange(config.iterations), **metrics})
         plots.learning_curve(result.metrics, stage / "learning_curve.png",
                              title=f"REINFORCE on {_env_name(config)}, seed {args.seed}")
     print(f"mean return over the last 10 iterations: {final:.1f} "
@@ -265,11 +336,18 @@ def cmd_train(args):
     print(f"wrote {out}/: {checkpoint.FILENAME}, metrics.json, metrics.csv, learning_curve.png")
 
 
-def _join_processes(args):
+def _join_processes(args: argparse.Namespace) -> bool:
     """Joins the other processes of a sweep over several hosts; JAX must not have started yet.
+
+    Args:
+      args: the parsed arguments of `jaxpg sweep`: `--coordinator`, `--num-processes` and
+        `--process-id`, all given or none.
 
     Returns:
       True when this process writes the results: the only one, or process 0 of several.
+
+    Raises:
+      ValueError: the three flags are not given together, or one is out of range.
     """
     flags = (args.coordinator, args.num_processes, args.process_id)
     if all(flag is None for flag in flags):
@@ -285,13 +363,24 @@ def _join_processes(args):
         raise ValueError(f"process_id: must be in [0, {args.num_processes}), got {args.process_id}")
     import jax
 
-    jax.distributed.initialize(
-        coordinator_address=args.coordinator, num_processes=args.num_processes, process_id=args.process_id
-    )
+    jax.distributed.initialize(coordinator_address=args.coordinator,
+                               num_processes=args.num_processes, process_id=args.process_id)
     return args.process_id == 0
 
 
-def cmd_sweep(args):
+def cmd_sweep(args: argparse.Namespace) -> None:
+    """`jaxpg sweep`: trains seeds 0 to N-1 under every grid setting, and compares the settings.
+
+    Writes `metrics.npz`, `runs.csv`, `summary.json`, `sweep.png` and `policies.msgpack` into
+    `args.out` all at once, then the comparison report (`report.write`) where there are two seeds
+    or more. Over several processes (`--coordinator`), process 0 alone writes.
+
+    Args:
+      args: the parsed arguments of `build_parser`.
+
+    Raises:
+      ValueError: a bad argument, before anything is written or compiled.
+    """
     writes_results = _join_processes(args)  # first: it must come before JAX computes anything
     from jaxpg import atomic_files, checkpoint, plots
     from jaxpg.reinforce import first_nonfinite
@@ -304,7 +393,7 @@ def cmd_sweep(args):
             **_physics_settings(args)[0]}
     # Before anything is written, traced or allocated.
     check_arguments(config, range(args.seeds), grid, args.memory_budget)
-    from jaxpg import report  # after the checks: it imports scipy, in half a second
+    from jaxpg import report  # after the checks: it imports scipy, which is slow to import
     out = (atomic_files.claim if writes_results else atomic_files.check_out_dir)(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
@@ -316,9 +405,11 @@ def cmd_sweep(args):
     s = swept.summary
     labels = [report.setting_label(g) for g in swept.grid]
     with atomic_files.staged(out) as stage:
-        np.savez_compressed(stage / "metrics.npz", seeds=swept.seeds,
-                            **{name: [g[name] for g in swept.grid] for name in swept.grid[0]},
-                            **swept.metrics.columns(), **_held_out(swept))
+        # (numpy's stubs let `**` arguments fill `allow_pickle`, a bool, which these never name.)
+        np.savez_compressed(
+            stage / "metrics.npz", seeds=swept.seeds,
+            **{name: [g[name] for g in swept.grid] for name in swept.grid[0]},  # type: ignore[arg-type]
+            **swept.metrics.columns(), **_held_out(swept))  # type: ignore[arg-type]
         num_settings, num_seeds = s.final_return.shape
         atomic_files.write_csv(stage / "runs.csv", {
             **{name: np.repeat([g[name] for g in swept.grid], num_seeds) for name in swept.grid[0]},
@@ -347,7 +438,8 @@ def cmd_sweep(args):
                          for name, medians in held_out.items())
         print(f"{label}: median last-10 mean return {final:.1f}{beside}, solved {solved:.0%} of "
               f"{args.seeds} seeds")
-    print(f"{s.final_return.size} runs in {seconds:.1f} s; wrote {out}/: metrics.npz, runs.csv, summary.json, sweep.png, {checkpoint.SWEEP_FILENAME}")
+    print(f"{s.final_return.size} runs in {seconds:.1f} s; wrote {out}/: metrics.npz, runs.csv, "
+          f"summary.json, sweep.png, {checkpoint.SWEEP_FILENAME}")
     if args.seeds < 2:
         print("no comparison report: its confidence intervals need at least 2 seeds")
         return
@@ -356,14 +448,26 @@ def cmd_sweep(args):
     print(f"wrote {out}/: {', '.join((report.COMPARISON_FILE, *report.PLOT_FILES))}")
 
 
-def _held_out(swept):
+def _held_out(swept: "SweepResult") -> dict[str, np.ndarray]:
     """The sweep's held-out returns by name, `[G, S, N]`: none where it played none."""
     if swept.eval_returns is None:
         return {}
-    return {"eval_returns": swept.eval_returns, "eval_greedy_returns": swept.eval_greedy_returns}
+    # (Played together: eval_greedy_returns is None where eval_returns is.)
+    return {"eval_returns": swept.eval_returns,
+            "eval_greedy_returns": cast(np.ndarray, swept.eval_greedy_returns)}
 
 
-def cmd_compare(args):
+def cmd_compare(args: argparse.Namespace) -> None:
+    """`jaxpg compare`: compares the settings of sweep folders, with bootstrap confidence intervals.
+
+    Prints the comparison and writes it, with its plots, into `args.out` (`report.write`).
+
+    Args:
+      args: the parsed arguments of `build_parser`.
+
+    Raises:
+      ValueError: a bad argument, or a folder that holds no sweep's results.
+    """
     from jaxpg import report
 
     comparison = report.write(args.folders, args.out, args.confidence, args.reps, args.seed)
@@ -371,7 +475,19 @@ def cmd_compare(args):
     print(f"wrote {args.out}/: {', '.join((report.COMPARISON_FILE, *report.PLOT_FILES))}")
 
 
-def cmd_evaluate(args):
+def cmd_evaluate(args: argparse.Namespace) -> None:
+    """`jaxpg evaluate`: plays policies' episodes and prints the statistics of their returns.
+
+    One policy in one physics setting, without `--out`, plays in jaxpg or Gymnasium
+    (`evaluation.evaluate`); otherwise every policy in every setting of the physics flags plays in
+    jaxpg (`evaluation.robustness`), and `--out` gets robustness.json, .csv and .png.
+
+    Args:
+      args: the parsed arguments of `build_parser`.
+
+    Raises:
+      ValueError: a bad argument, before anything is written or compiled.
+    """
     from jaxpg import atomic_files, cartpole
     from jaxpg.evaluation import evaluate, physics_label, physics_settings, robustness
 
@@ -381,12 +497,13 @@ def cmd_evaluate(args):
     policies, network, description = _load_policies(args.policy, args.run)
     policy = _one_policy(policies, network)
     if policy is not None and len(settings) == 1 and args.out is None:
-        result = evaluate(policy, episodes=args.episodes, max_steps=args.max_steps,
-                          env=env_params.replace(**settings[0]), seed=args.seed,
-                          backend=args.backend)
+        stats = evaluate(policy, episodes=args.episodes, max_steps=args.max_steps,
+                         env=env_params.replace(**settings[0]), seed=args.seed,
+                         backend=args.backend)
         print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps "
               f"in {args.backend} {args.env} ({physics_label(settings[0])}):")
-        print(f"mean {result.mean:.3f}  std {result.std:.3f}  min {result.min:g}  max {result.max:g}")
+        print(f"mean {stats.mean:.3f}  std {stats.std:.3f}  min {stats.min:g}  "
+              f"max {stats.max:g}")
         return
     if args.backend != "jaxpg":
         raise ValueError("backend: gymnasium plays one policy in one physics setting; several "
@@ -405,9 +522,19 @@ def cmd_evaluate(args):
         print(f"wrote {args.out}/: robustness.json, robustness.csv, robustness.png")
 
 
-def _write_robustness(folder, result, values, args):
-    """Writes `result` of `jaxpg evaluate` as robustness.json, robustness.csv (a row per policy
-    and setting) and robustness.png (the median return per setting, `_median_table`)."""
+def _write_robustness(folder: pathlib.Path, result: "Robustness",
+                      values: Mapping[str, Sequence[float]], args: argparse.Namespace) -> None:
+    """Writes the `result` of `jaxpg evaluate` into `folder`.
+
+    robustness.json holds the arguments and the statistics, robustness.csv a row per policy and
+    setting, and robustness.png the median return per setting (`_median_table`).
+
+    Args:
+      folder: an existing directory.
+      result: the returns of every policy in every setting.
+      values: the physics flags' values, as `evaluation.robustness` took them.
+      args: the parsed arguments of `jaxpg evaluate`.
+    """
     from jaxpg import atomic_files, plots
 
     median = np.median(result.pooled, axis=1)
@@ -430,36 +557,66 @@ def _write_robustness(folder, result, values, args):
                          f"{args.episodes} episodes")
 
 
-def _median_table(median, settings, values):
-    """The medians `[P]` of the settings of the physics flags' `values` as a table: the last
-    flag's values across, the combinations of the others down (one cell without flags).
+def _median_table(
+        median: np.ndarray, settings: Sequence[Mapping[str, float]],
+        values: Mapping[str, Sequence[float]],
+) -> tuple[np.ndarray, list[str], list[str], str | None]:
+    """The median return per physics setting as a table, for a heatmap.
+
+    The last flag's values go across, the combinations of the others down (one cell without
+    flags).
+
+    Args:
+      median: float `[P]` medians, one per setting, in the order of `settings`.
+      settings: the `P` settings, `{field: value}`, the last flag's values varying fastest.
+      values: the physics flags' values by field.
 
     Returns:
-      (`[rows, columns]`, row labels, column labels, what the columns vary or None)
+      (the medians `[rows, columns]`, row labels, column labels, the field the columns vary or
+      None).
     """
     from jaxpg.evaluation import physics_label
 
     across = list(values)[-1] if values else None
-    columns = values[across] if values else [None]
-    rows = [physics_label({name: value for name, value in setting.items() if name != across}, "all")
+    # (`across` names a flag wherever `values` holds one.)
+    columns = values[across] if values else [None]  # type: ignore[index]
+    rows = [physics_label({name: value for name, value in setting.items() if name != across},
+                          "all")
             for setting in settings[::len(columns)]]
     labels = [f"{value:g}" if across else "default physics" for value in columns]
     return median.reshape(len(rows), len(columns)), rows, labels, across
 
 
-def cmd_render(args):
+def cmd_render(args: argparse.Namespace) -> None:
+    """`jaxpg render`: draws one episode of a policy as an animation (GIF or MP4).
+
+    Args:
+      args: the parsed arguments of `build_parser`.
+
+    Raises:
+      ValueError: a bad argument, before anything is drawn.
+    """
     from jaxpg import cartpole, render
 
     render.check_animation_path(args.out, "out")
     policy, description = _load_policy(args.policy, args.run)
     check_int("seed", args.seed, 0, 2**32)
     env_params = cartpole.make_params(args.env)
-    frames = render.render_episode(policy, seed=args.seed, env_params=env_params, max_steps=args.max_steps)
+    frames = render.render_episode(policy, seed=args.seed, env_params=env_params,
+                                   max_steps=args.max_steps)
     render.save_animation(frames, args.out)
     print(f"wrote {args.out}: {description}, {len(frames) - 1} steps")
 
 
-def cmd_conformance(args):
+def cmd_conformance(args: argparse.Namespace) -> int:
+    """`jaxpg conformance`: plays CartPole in jaxpg and Gymnasium, compares every step, prints it.
+
+    Args:
+      args: the parsed arguments of `build_parser`.
+
+    Returns:
+      0 where the comparison passes (`Report.ok`), 1 otherwise.
+    """
     from jaxpg import conformance
 
     report = conformance.compare_with_gymnasium(episodes=args.episodes, seed=args.seed)
@@ -467,7 +624,17 @@ def cmd_conformance(args):
     return 0 if report.ok else 1
 
 
-def cmd_reproduce(args):
+def cmd_reproduce(args: argparse.Namespace) -> None:
+    """`jaxpg reproduce`: prints the book's numbers beside jaxpg's (`BOOK_*`).
+
+    The basic policy's returns, the discounting examples, and REINFORCE with the book's settings.
+
+    Args:
+      args: the parsed arguments of `build_parser`.
+
+    Raises:
+      ValueError: a bad seed, before anything compiles.
+    """
     from jaxpg import policies, returns
     from jaxpg.evaluation import evaluate, gymnasium_reset_states
     from jaxpg.reinforce import train
@@ -481,34 +648,46 @@ def cmd_reproduce(args):
     stats = evaluate(policies.basic_policy, 500, 200, init_states=states)
     _beside("mean, std, min, max", (stats.mean, stats.std, stats.min, stats.max), BOOK_BASIC_POLICY)
     print("Discounting:")
-    _beside("discount_rewards([10, 0, -50], 0.8)", returns.discount_rewards([10, 0, -50], 0.8), BOOK_DISCOUNT)
+    _beside("discount_rewards([10, 0, -50], 0.8)", returns.discount_rewards([10, 0, -50], 0.8),
+            BOOK_DISCOUNT)
     normalized = returns.discount_and_normalize_rewards([[10, 0, -50], [10, 20]], 0.8)
     _beside("discount_and_normalize_rewards([[10, 0, -50], [10, 20]], 0.8)",
             [np.round(np.asarray(n), 8).tolist() for n in normalized], BOOK_NORMALIZED)
     print(f"REINFORCE with the book's settings, seed {args.seed}:")
     result = train(TrainConfig(), seed=args.seed, show_progress=not args.quiet)
     mean_return = np.asarray(result.metrics.mean_return)
-    _beside("mean rewards at the last iteration", round(float(mean_return[-1]), 1), BOOK_LAST_ITERATION)
+    _beside("mean rewards at the last iteration", round(float(mean_return[-1]), 1),
+            BOOK_LAST_ITERATION)
     print(f"  mean over the last 10 iterations: {last_mean(mean_return):.1f}")
 
 
-def _beside(what, ours, book):
+def _beside(what: str, ours: Any, book: Any) -> None:
+    """Prints `what` jaxpg gives and what the book gives, one under the other."""
     print(f"  {what}:\n    jaxpg: {_fmt(ours)}\n    book:  {_fmt(book)}")
 
 
-def _fmt(value):
+def _fmt(value: Any) -> str:
+    """`value` as text; an array as a list."""
     return str(np.asarray(value).tolist() if hasattr(value, "shape") else value)
 
 
-def _env_name(config):
+def _env_name(config: "TrainConfig") -> str:
+    """The environment's name for a title."""
     return config.env if isinstance(config.env, str) else "CartPole (custom)"
 
 
 # --- Parser ----------------------------------------------------------------------------------
 
 
-def build_parser():
-    parser = _Parser(prog=PROG, description="Policy gradients on CartPole, exact and fast, in JAX.")
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of the `jaxpg` command line: a subcommand and its flags.
+
+    Returns:
+      A parser whose namespaces hold `command` (the subcommand's name), `handler` (its `cmd_*`
+      function) and the subcommand's flags. A bad command line exits with status 2 and one line.
+    """
+    parser = _Parser(prog=PROG,
+                     description="Policy gradients on CartPole, exact and fast, in JAX.")
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     p = commands.add_parser("train", help="train one policy with REINFORCE")
@@ -516,16 +695,20 @@ def build_parser():
     p.add_argument("--seed", type=int, default=42, help="(default %(default)s)")
     p.add_argument("--lr", type=float, default=0.01, help="learning rate (default %(default)s)")
     p.add_argument("--discount", type=float, default=0.95, help="(default %(default)s)")
-    p.add_argument("--entropy-coef", type=float, default=0.0, help="weight of the entropy bonus (default %(default)s)")
+    p.add_argument("--entropy-coef", type=float, default=0.0,
+                   help="weight of the entropy bonus (default %(default)s)")
     p.add_argument("--out", default="runs/train", help="output directory (default %(default)s)")
     p.set_defaults(handler=cmd_train)
 
     p = commands.add_parser("sweep", help="train many seeds and hyperparameters at once")
     _add_training_args(p)
     p.add_argument("--seeds", type=int, default=64, help="seeds 0..N-1 (default %(default)s)")
-    p.add_argument("--lr", type=_float_list, default=[0.01], help="learning rates, e.g. 0.003,0.01")
-    p.add_argument("--discount", type=_float_list, default=[0.95], help="discounts, e.g. 0.9,0.95")
-    p.add_argument("--entropy-coef", type=_float_list, default=[0.0], help="entropy bonus weights, e.g. 0,0.01")
+    p.add_argument("--lr", type=_float_list, default=[0.01],
+                   help="learning rates, e.g. 0.003,0.01")
+    p.add_argument("--discount", type=_float_list, default=[0.95],
+                   help="discounts, e.g. 0.9,0.95")
+    p.add_argument("--entropy-coef", type=_float_list, default=[0.0],
+                   help="entropy bonus weights, e.g. 0,0.01")
     p.add_argument("--out", default="runs/sweep", help="output directory (default %(default)s)")
     p.add_argument("--eval-episodes", type=int, default=0, help="held-out episodes each run's "
                    "final policy plays, sampled and greedy (default none)")
@@ -533,7 +716,8 @@ def build_parser():
                    "the runs train in chunks that fit it (default: all at once)")
     p.add_argument("--coordinator", help="HOST:PORT of process 0, to sweep over several hosts")
     p.add_argument("--num-processes", type=int, help="processes taking part, one per host")
-    p.add_argument("--process-id", type=int, help="this process's number, 0 to N-1; 0 writes the results")
+    p.add_argument("--process-id", type=int,
+                   help="this process's number, 0 to N-1; 0 writes the results")
     p.set_defaults(handler=cmd_sweep)
 
     p = commands.add_parser("evaluate", help="evaluate a policy in jaxpg or in Gymnasium, or many "
@@ -555,39 +739,62 @@ def build_parser():
     p.add_argument("--policy", default="basic", help="basic, or a directory written by jaxpg train "
                    "or jaxpg sweep (with --run)")
     p.add_argument("--run", type=_run_index, help="g,s: one run of a sweep, seed s of setting g")
-    p.add_argument("--out", default="cartpole.gif", help="a .gif or .mp4 path (default %(default)s)")
+    p.add_argument("--out", default="cartpole.gif",
+                   help="a .gif or .mp4 path (default %(default)s)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-steps", type=int, default=200)
     p.add_argument("--env", default="CartPole-v1", help="CartPole-v1 or CartPole-v0")
     p.set_defaults(handler=cmd_render)
 
-    p = commands.add_parser("compare", help="compare the settings of sweep folders, with confidence intervals")
-    p.add_argument("folders", nargs="+", metavar="DIR", help="folders written by jaxpg sweep --out")
+    p = commands.add_parser("compare", help="compare the settings of sweep folders, with "
+                            "confidence intervals")
+    p.add_argument("folders", nargs="+", metavar="DIR",
+                   help="folders written by jaxpg sweep --out")
     p.add_argument("--out", default="runs/compare", help="output directory (default %(default)s)")
-    p.add_argument("--confidence", type=float, default=0.95, help="interval coverage (default %(default)s)")
-    p.add_argument("--reps", type=int, default=2000, help="bootstrap resamples (default %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="seeds the bootstrap (default %(default)s)")
+    p.add_argument("--confidence", type=float, default=0.95,
+                   help="interval coverage (default %(default)s)")
+    p.add_argument("--reps", type=int, default=2000,
+                   help="bootstrap resamples (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seeds the bootstrap (default %(default)s)")
     p.set_defaults(handler=cmd_compare)
 
-    p = commands.add_parser("conformance", help="compare jaxpg with Gymnasium's CartPole step by step")
-    p.add_argument("--episodes", type=int, default=100, help="episodes per variant (default %(default)s)")
+    p = commands.add_parser("conformance",
+                            help="compare jaxpg with Gymnasium's CartPole step by step")
+    p.add_argument("--episodes", type=int, default=100,
+                   help="episodes per variant (default %(default)s)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(handler=cmd_conformance)
 
     p = commands.add_parser("reproduce", help="the book's numbers beside jaxpg's")
     p.add_argument("--seed", type=int, default=42)
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.add_argument("--no-cache", action="store_true", help="compile afresh; keep no compiled programs")
+    p.add_argument("--no-cache", action="store_true",
+                   help="compile afresh; keep no compiled programs")
     p.set_defaults(handler=cmd_reproduce)
     return parser
 
 
-def run_command(argv=None):
-    """Runs one `jaxpg` command in this process and returns its exit status (2 for bad input)."""
+def run_command(argv: Sequence[str] | None = None) -> int:
+    """Runs one `jaxpg` command in this process and returns its exit status.
+
+    Unlike `main`, it leaves the process's XLA setting, warnings and signals as they are.
+
+    Args:
+      argv: the command line after `jaxpg` (`["train", "--seed", "1"]`); by default `sys.argv[1:]`.
+
+    Returns:
+      0 on success; 2 for a bad argument (one line on stderr); 130 where interrupted; or the
+      command's own status (`cmd_conformance`).
+
+    Raises:
+      SystemExit: with status 2, for a command line the parser refuses; with status 0 for `--help`.
+    """
     return _execute(build_parser().parse_args(argv))
 
 
-def _execute(args):
+def _execute(args: argparse.Namespace) -> int:
+    """Runs the command of `args`: its status, 2 after a one-line error, 130 where interrupted."""
     try:
         return args.handler(args) or 0
     except (ValueError, OSError) as error:
@@ -598,9 +805,11 @@ def _execute(args):
         return 130
 
 
-def _runs_at_once(args):
-    """How many runs the command trains in this process at most at once; None where it trains
-    none or shares them with other processes."""
+def _runs_at_once(args: argparse.Namespace) -> int | None:
+    """How many runs the command trains in this process at most at once.
+
+    None where it trains none, or shares them with other processes.
+    """
     if args.command in ("train", "reproduce"):
         return 1
     if args.command == "sweep" and args.num_processes is None and args.seeds >= 1:
@@ -608,16 +817,23 @@ def _runs_at_once(args):
     return None
 
 
-def _interrupt(signum, frame):
-    """Ctrl-C: stops the command once (KeyboardInterrupt, which `schedule.train_blocks` passes on only
-    when its workers have stopped), and ignores any later one while it ends."""
+def _interrupt(signum: int, frame: types.FrameType | None) -> NoReturn:
+    """Ctrl-C: stops the command once, and ignores any later one while it ends.
+
+    Raises:
+      KeyboardInterrupt: which `schedule.train_blocks` passes on only when its workers have
+        stopped.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     raise KeyboardInterrupt
 
 
-def _unraisable(unraisable):
-    """Raises again a KeyboardInterrupt that Python dropped, raised where exceptions are only
-    reported (a garbage collector's callback, seen during tracing): elsewhere, it stops."""
+def _unraisable(unraisable: "sys.UnraisableHookArgs") -> None:  # (a name of the stubs alone)
+    """Raises again a KeyboardInterrupt that Python dropped; reports anything else as Python does.
+
+    A KeyboardInterrupt raised where exceptions are only reported (a garbage collector's callback,
+    seen during tracing) is dropped; raised again elsewhere, it stops the command.
+    """
     if issubclass(unraisable.exc_type, KeyboardInterrupt):
         signal.signal(signal.SIGINT, _interrupt)
         signal.raise_signal(signal.SIGINT)
@@ -628,23 +844,40 @@ def _unraisable(unraisable):
 _UNREADABLE_CACHE = "Error reading persistent compilation cache entry"
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    """Shows a warning as one line on stderr. JAX warns of each unreadable entry of its
-    compilation cache; the command warns once, of the cache."""
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                  file: TextIO | None = None, line: str | None = None) -> None:
+    """Shows a warning as one line on stderr (`warnings.showwarning`).
+
+    JAX warns of each unreadable entry of its compilation cache; the command warns once, of the
+    cache.
+    """
     text = str(message)
     if text.startswith(_UNREADABLE_CACHE):
         import jax
 
         warnings.filterwarnings("ignore", message=_UNREADABLE_CACHE)
-        text = (f"the compilation cache in {jax.config.jax_compilation_cache_dir} holds "
+        # (JAX's stubs declare none of its flags as attributes of `jax.config`.)
+        cache_dir = jax.config.jax_compilation_cache_dir  # type: ignore[attr-defined]
+        text = (f"the compilation cache in {cache_dir} holds "
                 f"unreadable entries, compiled afresh each time; delete it to rebuild it "
                 f"(first: {text})")
     print(f"{PROG}: warning: {text}", file=sys.stderr)
 
 
-def main(argv=None):
-    """The installed `jaxpg` command: `run_command` in a process with jaxpg's XLA setting,
-    one-line warnings, and Ctrl-C ending it with status 130 and one line."""
+def main(argv: Sequence[str] | None = None) -> NoReturn:
+    """The installed `jaxpg` command: runs one command, then exits with its status.
+
+    As `run_command`, in a process given jaxpg's XLA setting for the runs the command trains
+    (`xla_options.configure_xla`), one-line warnings, and Ctrl-C ending it with status 130 and one
+    line.
+
+    Args:
+      argv: the command line after `jaxpg`; by default `sys.argv[1:]`.
+
+    Raises:
+      SystemExit: with the command's exit status (as `run_command`). After Ctrl-C the process
+        ends at once instead (`os._exit`, status 130), waiting for no thread still compiling.
+    """
     from jaxpg import xla_options
 
     signal.signal(signal.SIGINT, _interrupt)

@@ -8,36 +8,56 @@ init_states=...)` starts jaxpg's episodes from them.
 
 import functools
 import re
-from typing import NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple, TypeGuard, cast
 
+import flax.linen as nn
 import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
+from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
 from jaxpg import cartpole, rng, rollout, sweeps, train_config
 from jaxpg.policies import PolicyNetwork, init_network, network_policy
+from jaxpg.types import Action, Observation, Params, Policy, PRNGKey
 from jaxpg.validation import check_choice, check_int
 
 BACKENDS = ("jaxpg", "gymnasium")
-BLOCK = 16  # runs `robustness` plays side by side: the fastest of 8 to 256 (benchmarks/README.md)
+# Runs that `robustness` plays side by side; chosen for speed (docs/performance.md).
+BLOCK = 16
+
+# An environment to play in: a preset name of `cartpole.PRESETS`, or physics of one's own.
+Env = str | cartpole.CartPoleParams
 
 
 class EvalResult(NamedTuple):
     """Statistics of the episode returns (Python floats) and the returns themselves."""
 
-    mean: float
+    mean: float  # the mean return
     std: float  # population standard deviation, as np.std
-    min: float
-    max: float
+    min: float  # the lowest return
+    max: float  # the highest return
     returns: np.ndarray  # [episodes] float64
 
 
-def resolve_env(env):
+def resolve_env(env: Env) -> tuple[cartpole.CartPoleParams, str]:
     """A preset name or a `CartPoleParams`, validated, as (env_params, Gymnasium env id).
 
     A custom `CartPoleParams` maps to `CartPole-v1`, whose settings `make_gymnasium_env` then
     replaces. Only scalar settings can be evaluated (one environment, not a sweep over many).
+
+    Args:
+      env: a preset name ("CartPole-v1", "CartPole-v0") or a `cartpole.CartPoleParams`.
+
+    Returns:
+      (env_params, env_id): the preset's or the given `CartPoleParams`, and the Gymnasium id to
+      make.
+
+    Raises:
+      ValueError: for an unknown preset, anything else than a name or a `CartPoleParams`, or
+        settings that `cartpole.check_params` refuses or that are arrays.
     """
     if isinstance(env, str):
         return cartpole.make_params(env), env
@@ -52,20 +72,29 @@ def resolve_env(env):
     return env, "CartPole-v1"
 
 
-def make_gymnasium_env(env_params, env_id="CartPole-v1"):
+def make_gymnasium_env(
+    env_params: cartpole.CartPoleParams, env_id: str = "CartPole-v1"
+) -> gymnasium.Env:
     """`gymnasium.make(env_id)` with its CartPoleEnv set to `env_params`.
 
     The TimeLimit truncates at `env_params.max_steps`. `total_mass` and `polemass_length` are
     recomputed the way `CartPoleEnv.__init__` does, from the masses and length, never copied from
     `env_params`: Gymnasium stays the reference even for a `CartPoleParams` that derives them
     wrongly.
+
+    Args:
+      env_params: scalar physics and episode settings.
+      env_id: the Gymnasium id of a CartPole environment.
+
+    Returns:
+      The environment, its TimeLimit outermost, as `gymnasium.make` wraps it.
     """
     gym_env = gymnasium.make(
         env_id,
         max_episode_steps=int(env_params.max_steps),
         sutton_barto_reward=bool(env_params.sutton_barto_reward),
     )
-    reference = gym_env.unwrapped
+    reference = cast(CartPoleEnv, gym_env.unwrapped)
     # CartPoleEnv keeps every physical field as an attribute of the same name.
     for name in train_config.PHYSICS:
         setattr(reference, name, float(getattr(env_params, name)))
@@ -76,15 +105,31 @@ def make_gymnasium_env(env_params, env_id="CartPole-v1"):
     return gym_env
 
 
-def reset_gymnasium(gym_env, seed, env_params):
-    """`gym_env.reset(seed=seed)` within the reset bounds of `env_params`; returns the obs `[4]`."""
+def reset_gymnasium(
+    gym_env: gymnasium.Env, seed: int, env_params: cartpole.CartPoleParams
+) -> np.ndarray:
+    """`gym_env.reset(seed=seed)` within the reset bounds of `env_params`.
+
+    Args:
+      gym_env: an environment of `make_gymnasium_env`.
+      seed: the seed of the reset.
+      env_params: whose `reset_low` and `reset_high` bound the initial values.
+
+    Returns:
+      The first observation, float32 `[4]`.
+    """
     bounds = {"low": float(env_params.reset_low), "high": float(env_params.reset_high)}
     obs, _ = gym_env.reset(seed=seed, options=bounds)
     return obs
 
 
-def gymnasium_reset_states(episodes, seed=0, env="CartPole-v1"):
+def gymnasium_reset_states(episodes: int, seed: int = 0, env: Env = "CartPole-v1") -> np.ndarray:
     """The float64 states that Gymnasium's `reset(seed=seed + i)` gives, for i in [0, episodes).
+
+    Args:
+      episodes: how many states, a positive integer.
+      seed: the seed of the first, an integer in [0, 2**32).
+      env: a preset name or a `cartpole.CartPoleParams` (`resolve_env`).
 
     Returns:
       `[episodes, 4]` float64 (x, x_dot, theta, theta_dot), as `env.unwrapped.state` holds them;
@@ -97,19 +142,26 @@ def gymnasium_reset_states(episodes, seed=0, env="CartPole-v1"):
     states = []
     for episode in range(episodes):
         reset_gymnasium(gym_env, seed + episode, env_params)
-        states.append(np.array(gym_env.unwrapped.state, dtype=np.float64))
+        states.append(np.array(cast(CartPoleEnv, gym_env.unwrapped).state, dtype=np.float64))
     return np.stack(states)
 
 
-def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, backend="jaxpg",
-             init_states=None):
+def evaluate(
+    policy: Policy,
+    episodes: int = 500,
+    max_steps: int = 200,
+    env: Env = "CartPole-v1",
+    seed: int = 0,
+    backend: str = "jaxpg",
+    init_states: npt.ArrayLike | None = None,
+) -> EvalResult:
     """Plays `episodes` episodes of at most `max_steps` steps and summarizes their returns.
 
     With backend "jaxpg" the episodes run as one compiled `rollout.rollout` from
     `jax.random.PRNGKey(seed)`. With backend "gymnasium", episode i runs in `gymnasium.make(env)`
     from `reset(seed=seed + i)`, one step at a time, as the book does; the policy's uniform at step
-    t of episode i is drawn from `fold_in(fold_in(PRNGKey(seed), i), t)`. An episode also ends when the
-    environment's own time limit (`max_steps` of its CartPoleParams) truncates it.
+    t of episode i is drawn from `fold_in(fold_in(PRNGKey(seed), i), t)`. An episode also ends when
+    the environment's own time limit (`max_steps` of its CartPoleParams) truncates it.
 
     Args:
       policy: `(obs [E, 4], u [E]) -> action [E]` with u uniform in [0, 1), e.g.
@@ -124,6 +176,11 @@ def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, bac
 
     Returns:
       `EvalResult` with the returns `[E]`.
+
+    Raises:
+      ValueError: one line naming the argument, for a policy that is not callable, an argument out
+        of range, `init_states` of another shape than `[E, 4]` or with backend "gymnasium", or
+        a policy that plays an action other than 0 or 1.
     """
     if not callable(policy):
         raise ValueError(f"policy: must be a callable (obs, u) -> action, got {policy!r}")
@@ -147,8 +204,15 @@ def evaluate(policy, episodes=500, max_steps=200, env="CartPole-v1", seed=0, bac
     return summarize(returns)
 
 
-def summarize(returns):
-    """`EvalResult` of returns `[E]`."""
+def summarize(returns: npt.ArrayLike) -> EvalResult:
+    """`EvalResult` of returns `[E]`.
+
+    Args:
+      returns: `[E]` episode returns.
+
+    Returns:
+      Their statistics, and the returns as float64.
+    """
     returns = np.asarray(returns, dtype=np.float64)
     return EvalResult(
         float(returns.mean()), float(returns.std()), float(returns.min()), float(returns.max()),
@@ -156,7 +220,7 @@ def summarize(returns):
     )
 
 
-def _init_state(init_states, episodes):
+def _init_state(init_states: npt.ArrayLike, episodes: int) -> cartpole.CartPoleState:
     """`init_states` `[episodes, 4]` as a `CartPoleState`, in jaxpg's float dtype."""
     shape = np.shape(init_states)
     if shape != (episodes, 4):
@@ -164,29 +228,50 @@ def _init_state(init_states, episodes):
     return cartpole.CartPoleState.from_array(np.asarray(init_states))
 
 
-def _as_argument(policy):
-    """`policy` as an argument of a compiled function: a pytree (`policies.NetworkPolicy`) as it
-    is, its arrays traced; a plain function wrapped, as a static part of the program (hashed by
-    identity, so a module-level function such as basic_policy compiles once per shape)."""
+def _as_argument(policy: Policy) -> Policy:
+    """`policy` as an argument of a compiled function.
+
+    A pytree (`policies.NetworkPolicy`) as it is, its arrays traced; a plain function wrapped, as a
+    static part of the program (hashed by identity, so a module-level function such as
+    basic_policy compiles once per shape).
+    """
     if _is_function(policy):
         return jax.tree_util.Partial(policy)
     return policy
 
 
-def _is_function(policy):
+def _is_function(policy: object) -> TypeGuard[Policy]:
     """Whether `policy` is a callable that is not a pytree of arrays (a plain function)."""
     return callable(policy) and jax.tree_util.treedef_is_leaf(jax.tree.structure(policy))
 
 
-def reset_states(key, episodes, env_params):
-    """The initial states of `evaluate`'s (and `robustness`'s) episodes from `key`: those that
-    `rollout.rollout(key, ...)` draws. Returns a `CartPoleState` with `[episodes]` leaves."""
+def reset_states(
+    key: PRNGKey, episodes: int, env_params: cartpole.CartPoleParams
+) -> cartpole.CartPoleState:
+    """The initial states of `evaluate`'s (and `robustness`'s) episodes from `key`.
+
+    Args:
+      key: the key of the episodes, as `rollout.rollout(key, ...)` takes it.
+      episodes: E, how many.
+      env_params: the physics, whose reset bounds the states are drawn within.
+
+    Returns:
+      A `CartPoleState` with `[E]` leaves: the states that `rollout.rollout(key, ...)` draws.
+    """
     key_reset, _ = rng.split(key)
     return rollout.reset_batch(key_reset, episodes, env_params)[1]
 
 
 @functools.partial(jax.jit, static_argnames=("episodes", "max_steps"))
-def _jaxpg_returns(key, env_params, init_state, policy, episodes, max_steps):
+def _jaxpg_returns(
+    key: PRNGKey,
+    env_params: cartpole.CartPoleParams,
+    init_state: cartpole.CartPoleState | None,
+    policy: Policy,
+    episodes: int,
+    max_steps: int,
+) -> tuple[jax.Array, jax.Array | None]:
+    """The returns `[E]` of `evaluate`'s episodes in jaxpg, and whether any action was invalid."""
     if init_state is None:
         init_state = reset_states(key, episodes, env_params)
     played = rollout.rollout(key, policy, env_params, episodes, max_steps, init_state)
@@ -194,13 +279,20 @@ def _jaxpg_returns(key, env_params, init_state, policy, episodes, max_steps):
 
 
 @jax.jit
-def _act(policy, obs, key, episode, t):
+def _act(policy: Policy, obs: Observation, key: PRNGKey, episode: int, t: int) -> Action:
     """The policy's action for one observation `[4]`, with the uniform of step t of `episode`."""
     key = jax.random.fold_in(jax.random.fold_in(key, episode), t)
     return policy(obs[None], jax.random.uniform(key, (1,)))[0]
 
 
-def _gymnasium_returns(policy, episodes, max_steps, env_params, env_id, seed):
+def _gymnasium_returns(
+    policy: Policy,
+    episodes: int,
+    max_steps: int,
+    env_params: cartpole.CartPoleParams,
+    env_id: str,
+    seed: int,
+) -> np.ndarray:
     """Returns `[episodes]` of episodes played in Gymnasium, one Python step at a time."""
     gym_env = make_gymnasium_env(env_params, env_id)
     key = jax.random.PRNGKey(seed)
@@ -224,50 +316,52 @@ class Robustness(NamedTuple):
     """The returns of G x S policies, each in P physics settings, and their statistics."""
 
     returns: np.ndarray  # [G, S, P, E] float64: cell (g, s, p) as `evaluate` plays it
-    settings: list  # P dicts {field: value} of the physical fields that `env_grid` set
+    settings: list[dict[str, float]]  # P dicts {field: value} of the physical fields `env_grid` set
 
     @property
-    def labels(self):
+    def labels(self) -> list[str]:
         """The P settings in words (`physics_label`)."""
         return [physics_label(setting) for setting in self.settings]
 
     @property
-    def pooled(self):
+    def pooled(self) -> np.ndarray:
         """`[P, G * S * E]` every policy's returns in each setting."""
         return np.moveaxis(self.returns, 2, 0).reshape(len(self.settings), -1)
 
     @property
-    def mean(self):
+    def mean(self) -> np.ndarray:
         """`[G, S, P]` mean return over the episodes."""
         return self.returns.mean(axis=-1)
 
     @property
-    def median(self):
+    def median(self) -> np.ndarray:
         """`[G, S, P]` median return over the episodes."""
         return np.median(self.returns, axis=-1)
 
     @property
-    def std(self):
+    def std(self) -> np.ndarray:
         """`[G, S, P]` population standard deviation of the returns, as `EvalResult.std`."""
         return self.returns.std(axis=-1)
 
     @property
-    def min(self):
+    def min(self) -> np.ndarray:
         """`[G, S, P]` lowest return."""
         return self.returns.min(axis=-1)
 
     @property
-    def max(self):
+    def max(self) -> np.ndarray:
         """`[G, S, P]` highest return."""
         return self.returns.max(axis=-1)
 
 
-def physics_label(setting, none="default physics"):
+def physics_label(setting: Mapping[str, float], none: str = "default physics") -> str:
     """A physics setting in words, e.g. "length=0.5, masspole=0.1"; `none` for no field."""
     return ", ".join(f"{name}={value:g}" for name, value in setting.items()) or none
 
 
-def physics_settings(env_grid, env_params):
+def physics_settings(
+    env_grid: sweeps.Grid, env_params: cartpole.CartPoleParams
+) -> list[dict[str, float]]:
     """The physics settings of `env_grid`, validated against `env_params`, as a list of P dicts.
 
     Args:
@@ -275,6 +369,9 @@ def physics_settings(env_grid, env_params):
         values, whose product the settings are, in `sweeps.expand_grid`'s order (the last field
         varying fastest); or a list of dicts, the settings themselves.
       env_params: the `CartPoleParams` that every setting modifies.
+
+    Returns:
+      P dicts {field: value} of the physical fields that the grid names (one empty dict for None).
 
     Raises:
       ValueError: one line naming the field, for an unknown field, an empty list, a repeated
@@ -293,7 +390,7 @@ def physics_settings(env_grid, env_params):
             for setting in settings]
 
 
-def _fields(env_grid):
+def _fields(env_grid: object) -> set[Any]:
     """The fields that a dict or a list of dicts names (none for anything else)."""
     if isinstance(env_grid, dict):
         return set(env_grid)
@@ -302,8 +399,15 @@ def _fields(env_grid):
     return set()
 
 
-def robustness(policies, env_grid=None, episodes=100, max_steps=200, seed=0, network=None,
-               env="CartPole-v1"):
+def robustness(
+    policies: sweeps.SweepResult | Params | Policy,
+    env_grid: sweeps.Grid = None,
+    episodes: int = 100,
+    max_steps: int = 200,
+    seed: int = 0,
+    network: nn.Module | None = None,
+    env: Env = "CartPole-v1",
+) -> Robustness:
     """Plays every policy in every physics setting, as one compiled program.
 
     Cell (g, s, p) holds the very episodes of `evaluate(policy (g, s), episodes, max_steps,
@@ -327,6 +431,11 @@ def robustness(policies, env_grid=None, episodes=100, max_steps=200, seed=0, net
 
     Returns:
       `Robustness` with returns `[G, S, P, E]` and the P settings.
+
+    Raises:
+      ValueError: one line naming the argument, for policies of other shapes than `network`'s, a
+        bad `env_grid` (`physics_settings`), an argument out of range, or a policy that plays an
+        action other than 0 or 1.
     """
     check_int("episodes", episodes)
     check_int("max_steps", max_steps)
@@ -348,7 +457,9 @@ def robustness(policies, env_grid=None, episodes=100, max_steps=200, seed=0, net
                       settings)
 
 
-def _split_policies(policies, network):
+def _split_policies(
+    policies: sweeps.SweepResult | Params | Policy, network: nn.Module
+) -> tuple[Policy | None, Params | None]:
     """(a policy function, None), or (None, the parameters `[G, S, ...]` of `network`), checked."""
     if isinstance(policies, sweeps.SweepResult):
         policies = policies.policy_params
@@ -357,7 +468,8 @@ def _split_policies(policies, network):
     want = jax.eval_shape(lambda key: init_network(key, network),
                           jax.ShapeDtypeStruct((2,), jnp.uint32))
     shapes = [np.shape(leaf) for leaf in jax.tree.leaves(policies)]
-    if (jax.tree.structure(policies) != jax.tree.structure(want)
+    # jaxlib's stubs leave PyTreeDef unresolved, so mypy cannot compare two of them.
+    if (jax.tree.structure(policies) != jax.tree.structure(want)  # type: ignore[operator]
             or len({shape[:2] for shape in shapes}) != 1
             or any(shape[2:] != leaf.shape for shape, leaf in zip(shapes, jax.tree.leaves(want)))):
         raise ValueError(
@@ -369,11 +481,21 @@ def _split_policies(policies, network):
 
 
 @functools.partial(jax.jit, static_argnames=("network", "function", "episodes", "max_steps"))
-def _robustness_returns(key, policy_params, physics, env_params, network, function, episodes,
-                        max_steps):
-    """The returns `[N, P, E]` of N policies (parameters `[N, ...]` of `network`, or one
-    `function`) in P settings (`physics`: `[P]` values of each physical field), and whether any
-    action was other than 0 or 1."""
+def _robustness_returns(
+    key: PRNGKey,
+    policy_params: Params | None,
+    physics: dict[str, np.ndarray],
+    env_params: cartpole.CartPoleParams,
+    network: nn.Module | None,
+    function: Policy | None,
+    episodes: int,
+    max_steps: int,
+) -> tuple[jax.Array, jax.Array]:
+    """The returns `[N, P, E]` of N policies in P settings, and whether any action was invalid.
+
+    The policies are parameters `[N, ...]` of `network`, or one `function`; the settings are
+    `physics`, `[P]` values of each physical field. An invalid action is one other than 0 or 1.
+    """
     num_policies = 1 if function else jax.tree.leaves(policy_params)[0].shape[0]
     num_settings = len(next(iter(physics.values())))
     num_runs = num_policies * num_settings
@@ -383,12 +505,17 @@ def _robustness_returns(key, policy_params, physics, env_params, network, functi
     init_state = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf[:, None], (episodes, BLOCK)),
                               reset_states(key, episodes, env_params))
 
-    def play_block(block):
+    def play_block(
+        block: tuple[Params, dict[str, jax.Array]],
+    ) -> tuple[jax.Array, jax.Array | None]:
+        """The returns `[E, BLOCK]` of one block of runs, and whether any action was invalid."""
         block_params, block_physics = block  # [BLOCK, ...] and [BLOCK] leaves
-        act = function or network_policy(
-            network, jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, -1), block_params), runs=True)
+        act = function or network_policy(  # without a function, a network
+            cast(nn.Module, network),
+            jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, -1), block_params), runs=True)
 
-        def policy(obs, u):  # every run draws evaluate's uniforms `[E]`
+        def policy(obs: Observation, u: jax.Array) -> Action:
+            """`act` with the uniforms `[E]` of `evaluate`, the same for every run."""
             return act(obs, jnp.broadcast_to(u[:, None], obs.shape[:-1]))
 
         played = rollout.rollout(key, policy, env_params.replace(**block_physics), episodes,

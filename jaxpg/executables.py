@@ -1,22 +1,22 @@
-"""Programs compiled ahead of their first call, and kept on disk whole, so that a later process
-neither traces nor compiles them.
+"""Programs compiled ahead of their first call, and kept on disk whole.
+
+A later process that finds a program kept neither traces nor compiles it.
 
 XLA compiles without holding Python's lock. `Stored.prepare` traces and lowers a program in the
 calling thread and compiles it on another, so that the caller can go on to trace the next program
 (`schedule.prepare`: `init` is traced and compiled while `iterate`, the longer, compiles).
 
 JAX's persistent compilation cache saves XLA's compiling, but a process that looks a program up
-there still traces and lowers the Python function to find its key: about a second for the
-training programs. A `Stored` function keeps the compiled executable itself, under a key of
-everything that decides it: the function's name and settings, its arguments' structure, shapes,
-dtypes and devices, jaxpg's own source, the versions of jax and jaxlib, the backend, JAX's
-configuration and `XLA_FLAGS`.
+there still traces and lowers the Python function to find its key. A `Stored` function keeps the
+compiled executable itself, under a key of everything that decides it: the function's name and
+settings, its arguments' structure, shapes, dtypes and devices, jaxpg's own source, the versions
+of jax and jaxlib, the backend, JAX's configuration and `XLA_FLAGS`.
 
-Nothing is kept until `keep_programs` names a directory, and nothing that JAX's persistent cache supplied:
-an executable loaded from a file loses some of its kernels when it is serialised again, so only
-programs that XLA compiled in this process are kept, and none while JAX's cache is on. A file
-that cannot be loaded is compiled again and replaced; a directory that cannot be written means
-only that nothing is kept.
+Nothing is kept until `keep_programs` names a directory, and nothing that JAX's persistent cache
+supplied: an executable loaded from a file loses some of its kernels when it is serialised again,
+so only programs that XLA compiled in this process are kept, and none while JAX's cache is on. A
+file that cannot be loaded is compiled again and replaced; a directory that cannot be written
+means only that nothing is kept.
 
 A kept program is read back without running any of the file's code: nothing is unpickled
 (`jax.experimental.serialize_executable` pickles, and unpickling runs whatever the file asks).
@@ -47,10 +47,13 @@ import os
 import pathlib
 import sys
 import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any, cast
 
 import jax
 import jax.numpy as jnp
 import jaxlib
+import numpy as np
 
 # (What jax.experimental.serialize_executable loads with, and the array type its results take.)
 from jax._src import array as jax_array
@@ -60,26 +63,42 @@ from jaxpg import atomic_files
 
 logger = logging.getLogger(__name__)
 
-_directory = None
+# A compiled program: a `jax.stages.Compiled`, a `_Kept` one, or (for arguments on several
+# devices) the jitted function itself.
+Program = Callable[..., Any]
+# What tells programs apart: (the directory that keeps them, or None where none is in use; the
+# arguments' tree; each leaf's shape, dtype and placement).
+Signature = tuple[pathlib.Path | None, jax.tree_util.PyTreeDef,
+                  tuple[tuple[tuple[int, ...], np.dtype, jax.sharding.Sharding | None], ...]]
+ProgramFile = tuple[pathlib.Path, str]  # (the file that keeps a program, its key's sha256)
+# A pytree structure as JSON (`_describe`).
+TreeDescription = str | dict[str, Any] | None
+
+_directory: pathlib.Path | None = None  # where programs are kept; None: nowhere
 
 
-def cache_home():
-    """$XDG_CACHE_HOME, or ~/.cache where it is unset, empty or relative (the XDG base directory
-    specification says to ignore such values)."""
+def cache_home() -> pathlib.Path:
+    """The user's cache directory: $XDG_CACHE_HOME, or ~/.cache.
+
+    ~/.cache where $XDG_CACHE_HOME is unset, empty or relative (the XDG base directory
+    specification says to ignore such values).
+    """
     value = os.environ.get("XDG_CACHE_HOME", "")
     return pathlib.Path(value) if os.path.isabs(value) else pathlib.Path.home() / ".cache"
 
 
-def keep_programs(directory=None):
-    """Keeps the programs of every `Stored` function in `directory` from now on, unless the
-    directory is another user's or others can write it (then with a warning, none): the next
-    process loads them rather than compiling; the `jaxpg` command does this for its own training.
+def keep_programs(directory: atomic_files.StrPath | None = None) -> None:
+    """Keeps the programs of every `Stored` function in `directory` from now on.
+
+    The next process loads them rather than compiling; the `jaxpg` command does this for its own
+    training. A directory that is another user's, or that others can write, keeps none (with a
+    warning): its programs are machine code that the process would run. Temporary files that
+    killed processes left there are removed. Programs of a user's own policy, loss or optimizer
+    are not kept: their code can change under the same name.
 
     Args:
       directory: where; by default `cache_home()/jaxpg/programs`, where the command keeps its.
-
-    Temporary files that killed processes left there are removed. Programs of a user's own
-    policy, loss or optimizer are not kept: their code can change under the same name.
+        Created for the user alone (0700) when a program is first kept.
     """
     directory = cache_home() / "jaxpg" / "programs" if directory is None else directory
     global _directory
@@ -93,7 +112,7 @@ def keep_programs(directory=None):
     _directory = directory
 
 
-def _unsafe(directory):
+def _unsafe(directory: pathlib.Path) -> str | None:
     """Why `directory` may not hold programs, which are machine code; None where it may."""
     if os.name != "posix":
         return None
@@ -108,18 +127,22 @@ def _unsafe(directory):
     return None
 
 
-def stop_keeping_programs():
+def stop_keeping_programs() -> None:
+    """Keeps no more programs, and loads none kept, from now on (until `keep_programs`)."""
     global _directory
     _directory = None
 
 
-def _in_use():
-    return (_directory is not None and jax.config.jax_compilation_cache_dir is None
+def _in_use() -> bool:
+    """Whether programs are kept: a directory is named, JAX's cache is off, one process computes."""
+    # (JAX's stubs declare none of its flags as attributes of `jax.config`.)
+    return (_directory is not None
+            and jax.config.jax_compilation_cache_dir is None  # type: ignore[attr-defined]
             and jax.process_count() == 1)
 
 
 @functools.cache
-def _source_digest():
+def _source_digest() -> str:
     """A digest of jaxpg's modules: a program compiled from other code is never reused."""
     digest = hashlib.sha256()
     for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
@@ -127,7 +150,7 @@ def _source_digest():
     return digest.hexdigest()
 
 
-def _environment():
+def _environment() -> tuple[Any, ...]:
     """What every program depends on besides its function and arguments."""
     backend = jax.devices()[0].client
     config = sorted((name, repr(value)) for name, value in jax.config.values.items()
@@ -139,11 +162,15 @@ def _environment():
 _CACHE_HIT = "/jax/compilation_cache/cache_hits"
 
 
-def _compile(lowered):
-    """(`lowered` compiled, whether XLA compiled it now rather than JAX's cache)."""
+def _compile(lowered: jax.stages.Lowered) -> tuple[jax.stages.Compiled, bool]:
+    """Compiles `lowered`.
+
+    Returns:
+      (`lowered` compiled, whether XLA compiled it now rather than JAX's cache supplied it).
+    """
     thread, hits = threading.get_ident(), []
 
-    def listen(event, **kwargs):
+    def listen(event: str, **kwargs: Any) -> None:
         if event == _CACHE_HIT and threading.get_ident() == thread:
             hits.append(event)
 
@@ -155,31 +182,34 @@ def _compile(lowered):
 
 
 @functools.cache
-def _compiler():
+def _compiler() -> concurrent.futures.ThreadPoolExecutor:
     """The threads that compile the programs prepared ahead of their calls."""
     return concurrent.futures.ThreadPoolExecutor(os.cpu_count(), "jaxpg-compile")
 
 
-def _done(program):
-    future = concurrent.futures.Future()
+def _done(program: Program) -> concurrent.futures.Future[Program]:
+    """A Future already holding `program`."""
+    future: concurrent.futures.Future[Program] = concurrent.futures.Future()
     future.set_result(program)
     return future
 
 
-def _placement(leaf):
-    """Where an argument is placed: its sharding, or None where JAX places it (a numpy array, or a
-    jax array not committed to its device)."""
+def _placement(leaf: Any) -> jax.sharding.Sharding | None:
+    """Where an argument is placed: its sharding, or None where JAX places it.
+
+    None for a numpy array, or a jax array not committed to its device.
+    """
     return getattr(leaf, "sharding", None) if getattr(leaf, "committed", True) else None
 
 
 class Stored:
-    """A jitted function whose programs can be compiled ahead of their calls, and are kept in the
-    enabled directory.
+    """A jitted function whose programs can be compiled ahead of their calls, and kept on disk.
 
     Called with concrete arrays, it runs the program that `prepare` started for their shapes,
-    dtypes and placement (waiting for it to compile), or, while storing is in use, the program kept
-    for them: found in memory, loaded from disk, or compiled and written there. Otherwise (and for
-    anything but calls, such as `lower`) it is the jitted function itself.
+    dtypes and placement (waiting for it to compile), or, while programs are kept
+    (`keep_programs`), the program kept for them: found in memory, loaded from disk, or compiled
+    and written there. Otherwise (and for anything but calls, such as `lower`) it is the jitted
+    function itself. Its results are those of the jitted function, bit for bit.
 
     Args:
       jitted: a `jax.jit` function of arrays only.
@@ -189,22 +219,27 @@ class Stored:
         of the user's, known by name only): its programs are compiled ahead as others, never kept.
     """
 
-    def __init__(self, jitted, name, settings, keep=True):
+    def __init__(self, jitted: jax.stages.Wrapped, name: str, settings: object,
+                 keep: bool = True) -> None:
         self._jitted = jitted
         self._name = name
         self._settings = repr(settings)
         self._may_keep = keep
-        self._programs = {}  # (directory, argument signature) -> Future of the program
+        # (directory, argument signature) -> Future of the program
+        self._programs: dict[Signature, concurrent.futures.Future[Program]] = {}
         self._lock = threading.Lock()
 
-    def __getattr__(self, name):
+    def __getattr__(self, name: str) -> Any:
+        """The jitted function's attribute `name` (`lower`, `eval_shape`, ...)."""
         return getattr(self._jitted, name)
 
-    def __call__(self, *args):
+    def __call__(self, *args: Any) -> Any:
+        """Runs the program for `args` (see the class); returns the jitted function's outputs."""
         leaves, tree = jax.tree.flatten(args)
         if not (self._programs or _in_use()) or any(
                 isinstance(leaf, jax.core.Tracer) or not hasattr(leaf, "dtype") for leaf in leaves):
-            return self._jitted(*args)  # (Python numbers among the arguments: the jitted function's)
+            # (Python numbers among the arguments: the jitted function's)
+            return self._jitted(*args)
         signature = self._signature(tree, leaves)
         program = self._programs.get(signature)
         if program is None or _failed(program):
@@ -213,20 +248,32 @@ class Stored:
             program = self._program(args, signature, ahead=False)
         return program.result()(*args)
 
-    def prepare(self, *args):
-        """Starts compiling (or loading) the program for arguments like `args`, and returns the
-        `concurrent.futures.Future` of it; a call with such arguments waits for it.
+    def prepare(self, *args: Any) -> concurrent.futures.Future[Program]:
+        """Starts compiling (or loading) the program for arguments like `args`.
 
-        `args` are arrays, or `jax.ShapeDtypeStruct`s shaped, typed and placed (`sharding`, None
-        for the default device) as the call's arrays will be. This thread traces and lowers the
-        function; another compiles it, so that this one can go on to trace the next.
+        This thread traces and lowers the function; another compiles it, so that this one can go
+        on to trace the next. A call with such arguments waits for it.
+
+        Args:
+          *args: arrays, or `jax.ShapeDtypeStruct`s shaped, typed and placed (`sharding`, None for
+            the default device) as the call's arrays will be.
+
+        Returns:
+          The `concurrent.futures.Future` of the program.
         """
         leaves, tree = jax.tree.flatten(args)
         return self._program(args, self._signature(tree, leaves), ahead=True)
 
-    def loaded(self, *args):
-        """The program for arguments like `args` (as for `prepare`) where it is at hand without
-        compiling: compiled already, or kept on disk (then loaded); otherwise None."""
+    def loaded(self, *args: Any) -> Program | None:
+        """The program for arguments like `args`, where it is at hand without compiling.
+
+        Args:
+          *args: as for `prepare`.
+
+        Returns:
+          The program compiled already, or kept on disk (then loaded); None where there is none,
+          it is still compiling, or it failed.
+        """
         leaves, tree = jax.tree.flatten(args)
         signature = self._signature(tree, leaves)
         with self._lock:
@@ -240,24 +287,31 @@ class Stored:
             return None
         return None if program.result() is self._jitted else program.result()
 
-    def _program(self, args, signature, ahead):
-        """The Future of the program for `signature`: the one at hand, or one started now where
-        there is none or it failed (a failure may have passed: tried again). One thread starts it;
-        the others wait for its program."""
+    def _program(self, args: tuple[Any, ...], signature: Signature,
+                 ahead: bool) -> concurrent.futures.Future[Program]:
+        """The Future of the program for `signature`: the one at hand, or one started now.
+
+        One is started where there is none or it failed (a failure may have passed: tried again).
+        One thread starts it; the others wait for its program.
+        """
         with self._lock:
             program = self._programs.get(signature)
             if program is None or _failed(program):
                 program = self._programs[signature] = self._start(args, signature, ahead)
         return program
 
-    def _signature(self, tree, leaves):
+    def _signature(self, tree: jax.tree_util.PyTreeDef, leaves: Sequence[Any]) -> Signature:
+        """What tells apart the programs for arguments of structure `tree` and leaves `leaves`."""
         return (_directory if _in_use() else None, tree,
                 tuple((leaf.shape, leaf.dtype, _placement(leaf)) for leaf in leaves))
 
-    def _start(self, args, signature, ahead):
-        """The Future of the program for `args`: loaded, or lowered now and compiled (on a thread
-        when `ahead`) and kept; the jitted function itself for arguments on several devices, whose
-        programs are neither compiled ahead nor kept."""
+    def _start(self, args: tuple[Any, ...], signature: Signature,
+               ahead: bool) -> concurrent.futures.Future[Program]:
+        """The Future of the program for `args`: loaded, or lowered now, compiled and kept.
+
+        Compiled on a thread when `ahead`. For arguments on several devices, the jitted function
+        itself, whose programs are neither compiled ahead nor kept.
+        """
         device, file = _device(signature), self._file(signature)
         if device is None:
             return _done(self._jitted)
@@ -266,7 +320,7 @@ class Stored:
             return _done(compiled)
         lowered = self._jitted.lower(*args)
 
-        def compile_and_keep():
+        def compile_and_keep() -> jax.stages.Compiled:
             compiled, fresh = _compile(lowered)
             if fresh and file is not None:
                 self._keep(compiled, file)
@@ -274,20 +328,25 @@ class Stored:
 
         return _compiler().submit(compile_and_keep) if ahead else _done(compile_and_keep())
 
-    def _file(self, signature):
-        """(the file that keeps the program for `signature`, the sha256 of the program's key);
-        None while storing is not in use."""
-        directory, tree, arguments = signature
+    def _file(self, signature: Signature) -> ProgramFile | None:
+        """The file that keeps the program for `signature`, and the sha256 of the program's key.
+
+        None while no programs are kept, or for a function whose programs are never kept.
+        """
+        directory, tree, leaves = signature
         if directory is None or not self._may_keep:
             return None
-        arguments = [(shape, str(dtype), str(sharding)) for shape, dtype, sharding in arguments]
+        arguments = [(shape, str(dtype), str(sharding)) for shape, dtype, sharding in leaves]
         key = repr((self._name, self._settings, str(tree), arguments, _environment()))
         digest = hashlib.sha256(key.encode()).hexdigest()
         return directory / f"{self._name}-{digest[:40]}.xla", digest
 
-    def _load(self, device, file):
-        """The program kept in `file` (from `_file`), loaded onto `device`; None where there is
-        none that loads, or the file was found unusable before (it is warned about once)."""
+    def _load(self, device: jax.Device | None, file: ProgramFile | None) -> "_Kept | None":
+        """The program kept in `file` (from `_file`), loaded onto `device`.
+
+        None where there is none that loads, or the file was found unusable before (it is warned
+        about once).
+        """
         if device is None or file is None or file[0] in _unusable:
             return None
         path, key = file
@@ -302,7 +361,8 @@ class Stored:
         logger.debug("loaded %s from %s", self._name, path)
         return kept
 
-    def _keep(self, compiled, file):
+    def _keep(self, compiled: jax.stages.Compiled, file: ProgramFile) -> None:
+        """Writes `compiled` to `file`; warns, and keeps nothing, where it cannot."""
         path, key = file
         try:
             data = _write(compiled, key)
@@ -313,12 +373,12 @@ class Stored:
             logger.warning("could not keep %s in %s (%s)", self._name, path.parent, error)
 
 
-def _failed(program):
+def _failed(program: concurrent.futures.Future[Program]) -> bool:
     """Whether the Future `program` ended in an error."""
     return program.done() and program.exception() is not None
 
 
-def _device(signature):
+def _device(signature: Signature) -> jax.Device | None:
     """The one device that a program for `signature` runs on; None for arguments on several."""
     devices = {device for _, _, sharding in signature[2] if sharding is not None
                for device in sharding.device_set} or {jax.devices()[0]}
@@ -328,10 +388,10 @@ def _device(signature):
 # --- Files of kept programs ----------------------------------------------------------------------
 
 _FORMAT = b"jaxpg-program 1\n"
-_unusable = set()  # the files this process found it could not load
+_unusable: set[pathlib.Path] = set()  # the files this process found it could not load
 
 
-def _write(compiled, key):
+def _write(compiled: jax.stages.Compiled, key: str) -> bytes:
     """The bytes of the file that keeps `compiled`, the program of the key whose sha256 is `key`.
 
     Raises:
@@ -339,7 +399,7 @@ def _write(compiled, key):
         other than the arguments' leaves (such as effects' tokens), or its outputs hold a node
         that `_describe` does not.
     """
-    executable = compiled.runtime_executable()
+    executable: Any = compiled.runtime_executable()  # (None where a backend has none: not kept)
     # The leaves XLA dropped, being unused, have no sharding.
     shardings = jax.tree.leaves(compiled.input_shardings, is_leaf=lambda sharding: sharding is None)
     taken = [index for index, sharding in enumerate(shardings) if sharding is not None]
@@ -353,9 +413,18 @@ def _write(compiled, key):
     return _FORMAT + json.dumps(header).encode() + b"\n" + payload
 
 
-def _read(data, key, device):
-    """The program in a file's `data` (from `_write`), checked against the sha256 `key` of the
-    program's key and loaded onto `device`. Raises a ValueError saying what does not match."""
+def _read(data: bytes, key: str, device: jax.Device) -> "_Kept":
+    """The program in a file's `data` (from `_write`), checked and loaded onto `device`.
+
+    Args:
+      data: the file's bytes.
+      key: the sha256 of the program's key, which the file must hold.
+      device: where the program runs.
+
+    Raises:
+      ValueError: the file is not one of a program, of this one, or its payload does not match
+        its digest; the message says which.
+    """
     if not data.startswith(_FORMAT):
         raise ValueError("not a jaxpg program file")
     header, _, payload = data[len(_FORMAT):].partition(b"\n")
@@ -371,17 +440,22 @@ def _read(data, key, device):
 
 
 class _Kept:
-    """A program read from its file, called as the `jax.stages.Compiled` it was: with arguments
-    like those it was compiled for. `out_info` gives its outputs' shapes and dtypes, as there."""
+    """A program read from its file, called as the `jax.stages.Compiled` it was.
 
-    def __init__(self, executable, device, arguments, outputs, shapes):
+    Called with arguments like those it was compiled for. `out_info` gives its outputs' shapes and
+    dtypes (a tree of `jax.ShapeDtypeStruct`), as there.
+    """
+
+    def __init__(self, executable: Any, device: jax.Device, arguments: Iterable[int],
+                 outputs: TreeDescription, shapes: Sequence[jax.ShapeDtypeStruct]) -> None:
         self._executable = executable
         self._device = device
         self._arguments = [int(index) for index in arguments]  # the leaves it takes
         self._outputs = outputs  # their tree, from `_describe`
         self.out_info = _unflatten(outputs, shapes)
 
-    def __call__(self, *args):
+    def __call__(self, *args: Any) -> Any:
+        """Runs the executable on `args`; returns its outputs' tree."""
         # None counted as a leaf, as `_write` counts the input shardings (None for a None leaf).
         leaves = jax.tree.leaves(args, is_leaf=lambda leaf: leaf is None)
         arrays = [leaves[index] if isinstance(leaves[index], jax.Array)
@@ -395,10 +469,12 @@ class _Kept:
             for [array] in results])
 
 
-def _describe(tree):
-    """A pytree structure (`PyTreeDef`) as JSON: "*" for a leaf, null for None, and
-    {"tuple": [...]}, {"list": [...]}, {"dict": [...], "keys": [...]} or
-    {"namedtuple": "module:qualname", "fields": [...]} of the children's descriptions.
+def _describe(tree: jax.tree_util.PyTreeDef) -> TreeDescription:
+    """A pytree structure (`PyTreeDef`) as JSON.
+
+    "*" for a leaf, null for None, and {"tuple": [...]}, {"list": [...]},
+    {"dict": [...], "keys": [...]} or {"namedtuple": "module:qualname", "fields": [...]} of the
+    children's descriptions.
 
     Raises:
       ValueError: a node of another kind (registered pytree nodes such as flax's dataclasses).
@@ -420,10 +496,12 @@ def _describe(tree):
     raise ValueError(f"its outputs hold a {kind.__name__}, which its file cannot describe")
 
 
-def _named_tuple(name):
-    """The named tuple class `module:qualname` of a module already imported; None where there is
-    none. Found by the modules' and classes' own dictionaries: nothing is imported, and no code of
-    a module (such as its `__getattr__`) runs."""
+def _named_tuple(name: str) -> type | None:
+    """The named tuple class `module:qualname` of a module already imported; None where none is.
+
+    Found by the modules' and classes' own dictionaries: nothing is imported, and no code of a
+    module (such as its `__getattr__`) runs.
+    """
     module, _, qualname = name.partition(":")
     found = sys.modules.get(module)
     for part in qualname.split("."):
@@ -433,7 +511,7 @@ def _named_tuple(name):
     return None
 
 
-def _unflatten(description, leaves):
+def _unflatten(description: TreeDescription, leaves: Iterable[Any]) -> Any:
     """The pytree that `description` (from `_describe`) describes, with `leaves` in order."""
     leaves = iter(leaves)
     try:
@@ -445,17 +523,20 @@ def _unflatten(description, leaves):
     return tree
 
 
-def _build(description, leaves):
+def _build(description: TreeDescription, leaves: Iterator[Any]) -> Any:
+    """The subtree that `description` describes, taking its leaves from `leaves`."""
     if description == "*":
         return next(leaves)
     if description is None:
         return None
+    description = cast(dict[str, Any], description)
     if "tuple" in description:
         return tuple(_build(child, leaves) for child in description["tuple"])
     if "list" in description:
         return [_build(child, leaves) for child in description["list"]]
     if "dict" in description:
-        return dict(zip(description["keys"], [_build(child, leaves) for child in description["dict"]]))
+        return dict(zip(description["keys"],
+                        [_build(child, leaves) for child in description["dict"]]))
     kind = _named_tuple(description["namedtuple"])
     if kind is None:
         raise ValueError(f"no named tuple {description['namedtuple']} is imported")

@@ -11,39 +11,56 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import losses, policies, rollout, sums
+from jaxpg.types import Array, Params
+
+# The loop's carry: the loss's total and each layer's (kernel, bias) totals, per episode.
+_Totals = tuple[Array, list[tuple[Array, Array]]]
 
 
-def reinforce_loss(policy_params, network, transitions, advantages):
-    """Mean over the alive steps of -advantage * log pi(a|s); `[R]` for R runs on trailing axes.
+def reinforce_loss(policy_params: Params, network: policies.PolicyNetwork,
+                   transitions: rollout.Transition, advantages: Array) -> Array:
+    """Mean over the alive steps of -advantage * log pi(a|s), by JAX's ordinary operations.
 
     Its gradient is the book's: the gradient of the binary cross-entropy between P(left) and the
     action taken, weighted by the normalised return and averaged over every step of every episode.
+
+    Args:
+      policy_params: the `PolicyNetwork`'s parameters, with R runs on trailing axes (kernels
+        `[K, N, *runs]`).
+      network: the `PolicyNetwork`.
+      transitions: the episodes, `[T, E, *runs]` leading axes (obs `[T, E, *runs, 4]`).
+      advantages: float `[T, E, *runs]`, each step's weight.
+
+    Returns:
+      The loss `[*runs]`.
     """
     logits = policies.forward(policy_params, transitions.obs, network.activation)
     terms = advantages * losses.log_prob(logits, transitions.action)
     return -sums.invariant_mean(terms, (0, 1), transitions.alive)
 
 
-def loss_and_grad(policy_params, network, transitions, advantages):
+def loss_and_grad(policy_params: Params, network: policies.PolicyNetwork,
+                  transitions: rollout.Transition, advantages: Array) -> tuple[Array, Params]:
     """`reinforce_loss` and its gradient: every step's share at once, added up over time in a loop.
 
-    A dense layer's kernel gradient is, step by step, the outer product of the layer's input and
-    the cotangent of its output. Both come for every step of every episode in one vectorised pass
-    (the cotangents as the gradient with respect to zero offsets on each layer's output). A loop
-    up to the last step that any episode is alive in then adds the outer products up per episode,
-    in time order, and the E episodes are summed at the end in a fixed order: a run rounds the
-    same alone as in a sweep. A loop step is a few multiply-adds on small accumulators
-    `[K, N, E, R]`, few enough kernels for XLA to run them one after another rather than schedule
-    them as a graph. A run alone has no run axis, so XLA vectorises the loop over its episodes:
-    they are padded with episodes of no alive step (all zeros) to whole vectors of
-    `rollout.LANES`, which made 1 seed train about 40 % sooner. With finite parameters the padding
-    changes no sum: a padded episode's totals stay +0 (a total, starting at +0, is never -0, so
-    adding zeros keeps it), `sums.invariant_sum` pads the episode axis with zeros anyway, and the
-    count of alive steps is taken before the padding.
-    The step signals take `[K, T, E, R]` floats per layer, which a sweep's memory budget counts.
+    Each dense layer's input and output cotangent come for every step at once; a loop up to the
+    last alive step adds their outer products per episode in time order, and the E episodes are
+    summed at the end in a fixed order (`sums.invariant_sum`), so that a run rounds the same alone
+    as in a sweep. A run alone (no run axis) pads its episodes to whole vectors of
+    `rollout.LANES` with episodes of no alive step (all zeros). With finite parameters the padding
+    changes no sum: a padded episode's totals stay +0 (a total starts at +0 and adding zeros keeps
+    it), `sums.invariant_sum` pads the episode axis with zeros anyway, and the count of alive
+    steps is taken before the padding. The step signals take `[K, T, E, *runs]` floats per layer,
+    which `jaxpg.budget` counts.
+
+    Args:
+      policy_params: as for `reinforce_loss`.
+      network: the `PolicyNetwork`.
+      transitions: as for `reinforce_loss`.
+      advantages: as for `reinforce_loss`.
 
     Returns:
-      (loss, gradient): `[R]` and `policy_params`-shaped, for R runs on trailing axes.
+      (loss `[*runs]`, gradient shaped as `policy_params`).
     """
     run_shape = advantages.shape[2:]
     # Counted before any padding: the same sum as the normalisation's, which XLA computes once.
@@ -58,9 +75,13 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     # A run alone's signals come without its run axes, which its totals get back at the end.
     runs = 0 if alone else len(run_shape)
 
-    # Summed over time per episode; steps after every episode ended weigh nothing.
-    def add_step(t, totals):
-        def at(array, axis):
+    # Summed over time per episode; steps after every episode ended weigh nothing. A step is a few
+    # multiply-adds on small accumulators, which XLA runs one after another (docs/performance.md).
+    def add_step(t: Array, totals: _Totals) -> _Totals:
+        """`totals` with step `t` of every episode added."""
+
+        def at(array: Array, axis: int) -> Array:
+            """Step `t` of `array`, whose time axis is `axis`."""
             return jax.lax.dynamic_index_in_dim(array, t, axis, keepdims=False)
 
         loss_total, layer_totals = totals
@@ -77,7 +98,8 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     lived = jnp.max(jnp.where(any_alive, np.arange(1, weights.shape[0] + 1), 0))
     totals = jax.lax.fori_loop(0, lived, add_step, zeros)
 
-    def over_episodes(total):  # -[..., E, *runs] summed over E, per alive step, [..., *run_shape]
+    def over_episodes(total: Array) -> Array:
+        """-`[..., E, *runs]` summed over E, per alive step: `[..., *run_shape]`."""
         total = sums.invariant_sum(total, total.ndim - runs - 1)
         return -total.reshape(total.shape[:total.ndim - runs] + run_shape) / count
 
@@ -87,28 +109,33 @@ def loss_and_grad(policy_params, network, transitions, advantages):
     return loss, grads
 
 
-
-def _alone(shape):
+def _alone(shape: tuple[int, ...]) -> bool:
     """Whether `[T, E, *runs]` is a run alone: no run axes, or run axes of one entry."""
     return math.prod(shape[2:]) == 1
 
 
-def _padded_episodes(transitions, advantages, multiple):
-    """Episodes `[T, E, ...]` and their advantages, padded with episodes of no alive step (all
-    zeros) to a multiple of `multiple` episodes."""
+def _padded_episodes(transitions: rollout.Transition, advantages: Array,
+                     multiple: int) -> tuple[rollout.Transition, Array]:
+    """Episodes `[T, E, ...]` and their advantages, padded to a multiple of `multiple` episodes.
+
+    The padding is episodes of no alive step, all zeros.
+    """
     extra = -advantages.shape[1] % multiple
 
-    def pad(leaf):
+    def pad(leaf: Array) -> Array:
+        """`leaf` with `extra` episodes of zeros appended."""
         return jnp.pad(leaf, [(0, 0), (0, extra)] + [(0, 0)] * (leaf.ndim - 2))
 
     return jax.tree.map(pad, transitions), pad(advantages)
 
 
-def _step_signals(policy_params, network, transitions, weights):
-    """Every step's weighted log-probability `[T, E, *runs]`, and each dense layer's input
-    features `[K, T, E, *runs]` and output cotangent `[N, T, E, *runs]`, computed at once.
+def _step_signals(policy_params: Params, network: policies.PolicyNetwork,
+                  transitions: rollout.Transition,
+                  weights: Array) -> tuple[Array, list[Array], list[Array]]:
+    """Every step's weighted log-probability and each dense layer's input and output cotangent.
 
-    The cotangents are the gradient with respect to zero offsets on each layer's output. A run
+    They are `[T, E, *runs]`, `[K, T, E, *runs]` and `[N, T, E, *runs]`, computed at once. The
+    cotangents are the gradient with respect to zero offsets on each layer's output. A run
     alone computes them over its steps and episodes as one axis, and returns them without run
     axes (`[T, E]`, `[K, T, E]`, `[N, T, E]`): XLA vectorises over the last axis, which a run axis
     of size one would be, and gives such arrays other layouts than the loop over them takes.
@@ -118,9 +145,11 @@ def _step_signals(policy_params, network, transitions, weights):
     alone = _alone(shape)
     if alone:
         policy_params = _without_runs(policy_params, len(shape) - 2)
-        obs, action, weights = obs.reshape(-1, obs.shape[-1]), action.reshape(-1), weights.reshape(-1)
+        obs, action, weights = (obs.reshape(-1, obs.shape[-1]), action.reshape(-1),
+                                weights.reshape(-1))
 
-    def forward(offsets):
+    def forward(offsets: list[Array]) -> tuple[Array, list[Array]]:
+        """The log-probability of each action taken, and each layer's inputs."""
         logits, inputs = policies.forward_layers(policy_params, obs, network.activation, offsets)
         return losses.log_prob(logits, action), inputs
 
@@ -135,6 +164,6 @@ def _step_signals(policy_params, network, transitions, weights):
     return signals
 
 
-def _without_runs(policy_params, runs):
+def _without_runs(policy_params: Params, runs: int) -> Params:
     """The parameters of a run alone without their `runs` trailing run axes, all of size one."""
     return jax.tree.map(lambda leaf: leaf.reshape(leaf.shape[:leaf.ndim - runs]), policy_params)

@@ -1,68 +1,108 @@
 """One training iteration of R runs at once: play, discount, compute the loss's gradient, step."""
 
 import functools
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
 import optax
 
-from jaxpg import hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
-from jaxpg.train_config import make_optimizer, steps_on_gradients
+from jaxpg import cartpole, hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
+from jaxpg.train_config import (
+    Hyperparams,
+    Ranges,
+    TrainConfig,
+    make_optimizer,
+    steps_on_gradients,
+)
+from jaxpg.types import Array, ArrayLike, HostArray, Params, Policy, PRNGKey
+
+# An array inside the training program, or its value on the host (numpy) once fetched.
+Values = Array | HostArray
 
 
 class TrainState(NamedTuple):
     """The carry of R runs from iteration to iteration.
 
     Parameters and optimizer state hold the runs on their last axis, where they meet each run's
-    episodes `[T, E, R]`; the keys are `[R, 2]`. On the fast path (`TrainConfig.hand_gradient`)
-    each run's parameters are one vector (`policies.flatten`, `[P, R]`), and so are the moments
-    of an optimizer in `ELEMENTWISE_OPTIMIZERS` (Adam among them): its step is then a few kernels
-    rather than a few per weight matrix and bias, which XLA compiles sooner. Otherwise they are
-    `{"policy": ..., "critic": ...}` as `init_run` makes them, leaves `[..., R]`.
+    episodes `[T, E, R]`. On the fast path (`TrainConfig.hand_gradient`) each run's parameters
+    are one vector (`policies.flatten`, `[P, R]`), and so are the moments of an optimizer in
+    `ELEMENTWISE_OPTIMIZERS` (Adam among them), whose step is then a few kernels rather than a
+    few per weight matrix and bias. Otherwise they are `{"policy": ..., "critic": ...}` as
+    `init_run` makes them, leaves `[..., R]`.
+
+    Attributes:
+      params: the runs' parameters, `[P, R]` on the fast path, else a dict of `[..., R]` leaves.
+      opt_state: the runs' optimizer state, leaves `[..., R]` (a dict by network off the fast
+        path).
+      key: uint32 `[R, 2]`, each run's PRNG key.
     """
 
-    params: jax.Array | dict
+    params: Params
     opt_state: optax.OptState
-    key: jax.Array
+    key: PRNGKey
 
 
 class Metrics(NamedTuple):
-    """Per-iteration statistics of a run: `[I]`, or `[R, I]` for R runs."""
+    """Per-iteration statistics of a run: `[I]`, or `[R, I]` for R runs.
 
-    mean_return: jax.Array
-    min_return: jax.Array
-    max_return: jax.Array
-    mean_length: jax.Array
-    loss: jax.Array
-    grad_norm: jax.Array  # of the policy's gradient
-    extra: dict = {}  # the loss's own metrics by name (and `entropy` with an entropy bonus)
+    Attributes:
+      mean_return: the mean return of the iteration's episodes.
+      min_return: their lowest return.
+      max_return: their highest return.
+      mean_length: their mean length in steps.
+      loss: the loss the step minimised (with the entropy bonus, where there is one).
+      grad_norm: the global L2 norm of the policy's gradient.
+      extra: the loss's own metrics by name (and `entropy` with an entropy bonus).
+    """
 
-    def columns(self):
+    mean_return: Values
+    min_return: Values
+    max_return: Values
+    mean_length: Values
+    loss: Values
+    grad_norm: Values
+    extra: dict[str, Values] = {}
+
+    def columns(self) -> dict[str, Values]:
         """Every metric by name, the loss's own beside the others: `{name: array}`."""
         fields = {name: getattr(self, name) for name in self._fields if name != "extra"}
         return {**fields, **self.extra}
 
 
-
 class TrainResult(NamedTuple):
-    """The trained policy and its per-iteration metrics (leading axis `[R]` for several runs),
-    and its held-out `Evaluation` where one was asked for."""
+    """The trained policy, its per-iteration metrics and, where asked for, its evaluation.
 
-    policy_params: dict
+    Attributes:
+      policy_params: the final policy parameters, leading axis `[R]` for several runs.
+      metrics: `Metrics`, `[I]` leaves, or `[R, I]` for several runs.
+      evaluation: the held-out `Evaluation` of the final policy, or None where none was asked for.
+    """
+
+    policy_params: Params
     metrics: Metrics
     evaluation: "Evaluation | None" = None
 
 
-def is_run_alone(train_state):
-    """Whether a `TrainState` holds one run (keys `[1, 2]`): `iterate` then plays and computes
-    it without its run axis, and `AloneOrTogether` picks the program compiled for that."""
+def is_run_alone(train_state: TrainState) -> bool:
+    """Whether a `TrainState` holds one run (keys `[1, 2]`).
+
+    `iterate` then plays and computes the run without its run axis, and `AloneOrTogether` picks
+    the program compiled for that.
+    """
     return train_state.key.shape[0] == 1
 
 
+def global_norm(tree: Params) -> Array:
+    """The L2 norm of every leaf together, summed in a fixed order so that it is batch-invariant.
 
-def global_norm(tree):
-    """The L2 norm of every leaf together, summed in a fixed order so that it is batch-invariant."""
+    Args:
+      tree: a pytree of arrays.
+
+    Returns:
+      A scalar.
+    """
     squares = [sums.invariant_sum(jnp.square(leaf).ravel(), 0) for leaf in jax.tree.leaves(tree)]
     return jnp.sqrt(sum(squares))
 
@@ -79,22 +119,34 @@ ELEMENTWISE_OPTIMIZERS = frozenset({
 })
 
 
-def _optimizer_view(config):
+def _optimizer_view(config: TrainConfig) -> tuple[Callable[[Array], Any], Callable[[Any], Array]]:
     """(to, back): a run's flat parameters `[P]` (or gradient) as its optimizer takes them."""
     if config.optimizer in ELEMENTWISE_OPTIMIZERS:
         return (lambda flat: flat), (lambda flat: flat)
-    network = config.network
+    network = cast(policies.PolicyNetwork, config.network)  # the fast path's
     return (functools.partial(policies.unflatten, network=network),
             functools.partial(policies.flatten, network=network))
 
 
-def init_run(config, key, hyperparams, policy_params=None):
+def init_run(
+    config: TrainConfig, key: PRNGKey, hyperparams: Hyperparams,
+    policy_params: Params | None = None,
+) -> tuple[Params, optax.OptState]:
     """The initial parameters and optimizer state of one run.
 
     On the fast path (`TrainConfig.hand_gradient`) the parameters are the policy's as one vector
     `[P]` (`policies.flatten`); otherwise `{"policy": ...}`, with `"critic"` for a loss that has
-    one (`losses.critic`), each with its own optimizer state. `policy_params` (one run's, as
-    `policies.init_network` gives them) start the policy where given.
+    one (`losses.critic`), each with its own optimizer state.
+
+    Args:
+      config: the `TrainConfig`.
+      key: the run's key `[2]`.
+      hyperparams: the run's `Hyperparams`, scalars.
+      policy_params: optional: one run's policy parameters, as `policies.init_network` gives
+        them, to start the policy from.
+
+    Returns:
+      (params, opt_state) of the run.
     """
     network = config.network
     key_init = jax.random.split(key)[1]
@@ -102,7 +154,7 @@ def init_run(config, key, hyperparams, policy_params=None):
         policy_params = policies.init_network(key_init, network)
     optimizer = make_optimizer(config, hyperparams.learning_rate)
     if config.hand_gradient:
-        flat = policies.flatten(policy_params, network)
+        flat = policies.flatten(policy_params, cast(policies.PolicyNetwork, network))
         to_optimizer, _ = _optimizer_view(config)
         return flat, optimizer.init(to_optimizer(flat))
     params = {"policy": policy_params}
@@ -112,18 +164,39 @@ def init_run(config, key, hyperparams, policy_params=None):
     return params, {name: optimizer.init(leaves) for name, leaves in params.items()}
 
 
-def init_runs(config, keys, hyperparams, policy_params=None):
-    """The initial `TrainState` of R runs, from their keys `[R, 2]` and `Hyperparams` `[R]`;
-    `policy_params`, one run's, start every run's policy where given."""
+def init_runs(config: TrainConfig, keys: PRNGKey, hyperparams: Hyperparams,
+              policy_params: Params | None = None) -> TrainState:
+    """The initial `TrainState` of R runs.
+
+    Args:
+      config: the `TrainConfig`.
+      keys: uint32 `[R, 2]`, the runs' keys.
+      hyperparams: `Hyperparams` with `[R]` leaves.
+      policy_params: optional: one run's policy parameters, which every run's policy starts from.
+
+    Returns:
+      `TrainState` of the R runs, run axes last (keys `[R, 2]`).
+    """
     params, opt_state = jax.vmap(
         lambda key, hyper: init_run(config, key, hyper, policy_params), out_axes=-1)(
         keys, hyperparams)
     return TrainState(params, opt_state, jax.vmap(lambda k: jax.random.split(k)[0])(keys))
 
 
-def optimizer_step(config, grads, opt_state, policy_params, learning_rate):
-    """One optimizer step of one run on the fast path, on its flat parameters and gradient `[P]`:
-    (policy_params `[P]`, opt_state)."""
+def optimizer_step(config: TrainConfig, grads: Array, opt_state: optax.OptState,
+                   policy_params: Array, learning_rate: ArrayLike) -> tuple[Array, optax.OptState]:
+    """One optimizer step of one run on the fast path, on its flat parameters and gradient.
+
+    Args:
+      config: the `TrainConfig`.
+      grads: the run's gradient `[P]`.
+      opt_state: the run's optimizer state.
+      policy_params: the run's flat policy parameters `[P]`.
+      learning_rate: the run's learning rate, a scalar.
+
+    Returns:
+      (policy_params `[P]`, opt_state) after the step.
+    """
     to_optimizer, back = _optimizer_view(config)
     params = to_optimizer(policy_params)
     updates, opt_state = make_optimizer(config, learning_rate).update(
@@ -131,7 +204,8 @@ def optimizer_step(config, grads, opt_state, policy_params, learning_rate):
     return back(optax.apply_updates(params, updates)), opt_state
 
 
-def iterate(config, train_state, hyperparams):
+def iterate(config: TrainConfig, train_state: TrainState,
+            hyperparams: Hyperparams) -> tuple[TrainState, Metrics]:
     """One iteration of R runs at once: play, discount, take one optimizer step on the loss.
 
     Args:
@@ -148,10 +222,10 @@ def iterate(config, train_state, hyperparams):
     env_params = _physics(config, hyperparams, alone)
     if config.randomize:
         key_rollout, key_physics = rng.split(key_rollout)
-        episodes = -(-config.episodes // rollout.LANES) * rollout.LANES if alone else (
+        num_episodes = -(-config.episodes // rollout.LANES) * rollout.LANES if alone else (
             config.episodes)
         env_params = _randomized(config.randomize, env_params, key_physics[0] if alone
-                                 else key_physics, episodes)
+                                 else key_physics, num_episodes)
 
     # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
     # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
@@ -180,9 +254,12 @@ def iterate(config, train_state, hyperparams):
     return TrainState(new_params, opt_state, key), metrics
 
 
-def _physics(config, hyperparams, alone):
-    """The runs' physics: the config's, compiled in, or each run's (`[R]` leaves, scalars for a
-    run alone)."""
+def _physics(config: TrainConfig, hyperparams: Hyperparams,
+             alone: bool) -> cartpole.CartPoleParams:
+    """The runs' physics: the config's, compiled in, or each run's.
+
+    Each run's physics have `[R]` leaves, scalars for a run alone.
+    """
     if hyperparams.env is None:
         return config.env_params
     return _without_run_axis(hyperparams.env) if alone else hyperparams.env
@@ -192,16 +269,29 @@ EVALUATION = 1  # folded into a run's key for its held-out episodes, a key train
 
 
 class Evaluation(NamedTuple):
-    """Held-out returns of each run's policy `[N]` (`[R, N]` for R runs): actions sampled as in
-    training, and greedy (the likelier action)."""
+    """Held-out returns of each run's policy `[N]` (`[R, N]` for R runs).
 
-    sampled: jax.Array
-    greedy: jax.Array
+    Attributes:
+      sampled: the returns with actions sampled as in training.
+      greedy: the returns with the likelier action taken.
+    """
+
+    sampled: Values
+    greedy: Values
 
 
-def evaluate_runs(config, train_state, hyperparams, episodes):
-    """R runs' current policies, each on `episodes` fresh episodes of its own (from its key with
-    `EVALUATION` folded in), in its training physics without randomisation.
+def evaluate_runs(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams,
+                  episodes: int) -> Evaluation:
+    """R runs' current policies, each on `episodes` fresh episodes of its own.
+
+    Each run's episodes come from its key with `EVALUATION` folded in and play in its training
+    physics without randomisation.
+
+    Args:
+      config: the `TrainConfig`.
+      train_state: `TrainState` of the R runs.
+      hyperparams: `Hyperparams` with `[R]` leaves.
+      episodes: how many episodes each run plays, static.
 
     Returns:
       `Evaluation` with `[R, episodes]` returns; a run plays the same episodes alone as beside
@@ -212,7 +302,8 @@ def evaluate_runs(config, train_state, hyperparams, episodes):
     keys = jax.vmap(lambda key: jax.random.fold_in(key, EVALUATION))(train_state.key)
     policy = _policy(config, params, alone)
 
-    def returns(policy):  # [R, episodes]
+    def returns(policy: Policy) -> Array:
+        """The returns `[R, episodes]` of the runs' episodes played by `policy`."""
         played = rollout.rollout(keys[0] if alone else keys, policy,
                                  _physics(config, hyperparams, alone), episodes, config.max_steps,
                                  lanes=rollout.LANES if alone else 1).returns
@@ -222,35 +313,46 @@ def evaluate_runs(config, train_state, hyperparams, episodes):
                       returns(lambda obs, u: policy(obs, jnp.full_like(u, 0.5))))
 
 
-def _randomized(ranges, env_params, key, episodes):
-    """`env_params` with each field of `ranges` drawn per episode, uniformly in [low, high):
-    leaves `[episodes]`, or `[episodes, R]` for R keys `[R, 2]`."""
+def _randomized(ranges: Ranges, env_params: cartpole.CartPoleParams, key: PRNGKey,
+                episodes: int) -> cartpole.CartPoleParams:
+    """`env_params` with each field of `ranges` drawn per episode, uniformly in [low, high).
+
+    The drawn fields have leaves `[episodes]` for a key `[2]`, or `[episodes, R]` for R keys
+    `[R, 2]`.
+    """
     keys = rng.split(key, len(ranges))
     return env_params.replace(**{
         name: rng.uniform(field_key, (episodes,), low, high)
         for (name, (low, high)), field_key in zip(ranges, keys)})
 
 
-def _without_run_axis(tree):
+def _without_run_axis(tree: Any) -> Any:
+    """`tree` with the trailing run axis of its leaves, of size one, taken off."""
     return jax.tree.map(lambda leaf: leaf[..., 0], tree)
 
 
-def _policy(config, params, alone):
-    """The rollout's policy `(obs [E, R, 4], u [E, R]) -> actions [E, R]` (without the run axes
-    for a run alone) of the runs' parameters."""
+def _policy(config: TrainConfig, params: Params, alone: bool) -> Policy:
+    """The rollout's policy of the runs' parameters.
+
+    It maps `(obs [E, R, 4], u [E, R])` to actions `[E, R]`, without the run axes for a run alone.
+    """
     network = config.network
     if config.hand_gradient:  # parameters taken apart where the rollout's kernels use them
-        return policies.network_policy(network, policies.unflatten(params, network))
+        return policies.network_policy(
+            network, policies.unflatten(params, cast(policies.PolicyNetwork, network)))
     return policies.network_policy(network, params["policy"], runs=not alone)
 
 
-def _learn_by_hand(config, train_state, transitions, hyperparams, alone):
+def _learn_by_hand(
+    config: TrainConfig, train_state: TrainState, transitions: rollout.Transition,
+    hyperparams: Hyperparams, alone: bool,
+) -> tuple[Array, optax.OptState, Array, Array, dict[str, Values]]:
     """The fast path's step: the book's loss and its gradient by `hand_gradient.loss_and_grad`."""
     del alone  # the gradient takes a run alone apart itself
-    network = config.network
+    network = cast(policies.PolicyNetwork, config.network)
     # Discounted returns, normalised over every step of every episode of a run.
     advantages = returns.discount_and_normalize_masked(
-        transitions.reward, transitions.alive, hyperparams.discount
+        transitions.reward, transitions.alive, cast(Array, hyperparams.discount)  # traced
     )
     loss, grad_arrays = hand_gradient.loss_and_grad(
         policies.unflatten(train_state.params, network), network, transitions, advantages)
@@ -261,7 +363,7 @@ def _learn_by_hand(config, train_state, transitions, hyperparams, alone):
     runs_last = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, 0, -1))
     params, opt_state = runs_last(jax.vmap(functools.partial(optimizer_step, config))(
         *runs_first((grads, train_state.opt_state, train_state.params)),
-        hyperparams.learning_rate,
+        hyperparams.learning_rate,  # type: ignore[call-arg]  # mypy counts *Any as every argument
     ))
     # Summed by parameter array: over the one vector, LLVM fuses a few of the squares into the
     # additions for one number of runs and not another.
@@ -269,7 +371,10 @@ def _learn_by_hand(config, train_state, transitions, hyperparams, alone):
     return params, opt_state, loss, grad_norm, {}
 
 
-def _learn(config, train_state, transitions, hyperparams, alone):
+def _learn(
+    config: TrainConfig, train_state: TrainState, transitions: rollout.Transition,
+    hyperparams: Hyperparams, alone: bool,
+) -> tuple[dict[str, Params], dict[str, optax.OptState], Array, Array, dict[str, Values]]:
     """Any other policy, loss or optimizer: `learn_run` of every run, by `runwise`."""
     if alone:
         transitions = jax.tree.map(lambda leaf: leaf[:, :, 0], transitions)
@@ -286,19 +391,31 @@ def _learn(config, train_state, transitions, hyperparams, alone):
     return jax.tree.map(lambda leaf: leaf[..., None], outs) if alone else outs
 
 
-def learn_run(config, params, opt_state, batch, hyper):
-    """One run's optimizer step on its loss plus the entropy bonus, each network (the policy and
-    a loss's critic) with its own optimizer.
+def learn_run(
+    config: TrainConfig, params: dict[str, Params], opt_state: dict[str, optax.OptState],
+    batch: losses.Batch, hyper: Hyperparams,
+) -> tuple[dict[str, Params], dict[str, optax.OptState], Array, Array, dict[str, Array]]:
+    """One run's optimizer step on its loss plus the entropy bonus.
+
+    Each network (the policy and a loss's critic) is stepped by its own optimizer.
+
+    Args:
+      config: the `TrainConfig`.
+      params: `{"policy": ...}`, with `"critic"` for a loss that has one.
+      opt_state: each network's optimizer state, by the same names.
+      batch: the run's episodes, `[T, E]`.
+      hyper: the run's `Hyperparams`, scalars.
 
     Returns:
       (params, opt_state, loss, grad_norm of the policy's gradient, the loss's metrics, with
-      `entropy`, the mean entropy over alive steps, where `config.entropy_coef` is not 0)
+      `entropy`, the mean entropy over alive steps, where `config.entropy_coef` is not 0).
     """
     loss_fn = losses.resolve(config.loss)
     apply_fn = _once_per_input(functools.partial(policies.logits, config.network))
     has_critic = losses.critic(config.loss) is not None
 
-    def total(params):
+    def total(params: dict[str, Params]) -> tuple[Array, dict[str, Array]]:
+        """The loss plus the entropy bonus, and the metrics."""
         loss, metrics = loss_fn(params if has_critic else params["policy"], apply_fn, batch, hyper)
         if not config.entropy_coef:  # no run has a bonus (`programs.compiled_program`)
             return loss, metrics
@@ -315,12 +432,15 @@ def learn_run(config, params, opt_state, batch, hyper):
     return params, opt_state, loss, global_norm(grads["policy"]), metrics
 
 
-def _once_per_input(apply_fn):
-    """`apply_fn(params, obs)`, computed once for the same arrays (inside one trace): the loss's
-    logits and the entropy bonus's are then one forward pass, and one backward."""
-    computed = {}
+def _once_per_input(apply_fn: losses.ApplyFn) -> losses.ApplyFn:
+    """`apply_fn(params, obs)`, computed once for the same arrays (inside one trace).
 
-    def apply(params, obs):
+    The loss's logits and the entropy bonus's are then one forward pass, and one backward.
+    """
+    computed: dict[tuple[tuple[int, ...], int], tuple[Array, Params, Array]] = {}
+
+    def apply(params: Params, obs: Array) -> Array:
+        """`apply_fn(params, obs)`, computed on the first call with these arrays."""
         key = (tuple(map(id, jax.tree.leaves(params))), id(obs))
         if key not in computed:  # the inputs are kept too, so that their ids stay theirs
             computed[key] = (apply_fn(params, obs), params, obs)
@@ -329,12 +449,21 @@ def _once_per_input(apply_fn):
     return apply
 
 
-def check_config(config):
-    """Checks the policy, loss and optimizer of `config` by their shapes alone (`jax.eval_shape`),
-    before anything compiles: a ValueError names the field at fault.
+def check_config(config: TrainConfig) -> tuple[str, ...]:
+    """Checks the policy, loss and optimizer of `config` by their shapes alone, before compiling.
+
+    Each is traced by `jax.eval_shape`, which compiles nothing.
+
+    Args:
+      config: the `TrainConfig`.
 
     Returns:
       The names of the loss's metrics (`Metrics.extra`), in the order of their leaves.
+
+    Raises:
+      ValueError: naming the field at fault: an optimizer function that returns no
+        `optax.GradientTransformation` or one that asks for more than the gradient, or a loss
+        that returns no (scalar, dict of scalars).
     """
     optimizer = make_optimizer(config, 0.01)
     if not isinstance(optimizer, optax.GradientTransformation):
@@ -349,9 +478,9 @@ def check_config(config):
     hyper = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((), leaf.dtype),
                          config.hyperparams.per_run())
     steps = (config.max_steps, config.episodes)
-    batch = losses.Batch(jax.ShapeDtypeStruct((*steps, 4), floats),
-                         jax.ShapeDtypeStruct(steps, jnp.int32), jax.ShapeDtypeStruct(steps, floats),
-                         jax.ShapeDtypeStruct(steps, bool), jax.ShapeDtypeStruct(steps, floats))
+    shaped: Any = jax.ShapeDtypeStruct  # a batch of shapes, in place of arrays
+    batch = losses.Batch(shaped((*steps, 4), floats), shaped(steps, jnp.int32),
+                         shaped(steps, floats), shaped(steps, bool), shaped(steps, floats))
     params, opt_state = jax.eval_shape(
         lambda key: init_run(config, key, config.hyperparams),
         jax.ShapeDtypeStruct((2,), jnp.uint32))
@@ -370,5 +499,6 @@ def check_config(config):
     return tuple(sorted(metrics))
 
 
-def _is_scalar(leaf):
+def _is_scalar(leaf: Any) -> bool:
+    """Whether `leaf` is an array (or shape) of no axes."""
     return hasattr(leaf, "shape") and leaf.shape == ()

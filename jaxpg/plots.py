@@ -7,30 +7,42 @@ no display is touched. Each file is replaced atomically; its format follows the 
 """
 
 import pathlib
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from jaxpg import atomic_files
+from jaxpg.atomic_files import StrPath
+from jaxpg.types import HostArray
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from jaxpg.iteration import Metrics
 
 FIGSIZE = (8.0, 4.5)  # inches
 DPI = 100  # so an 800 x 450 pixel image, or 800 x 700 for two panels
 _TWO_PANEL_FIGSIZE = (8.0, 7.0)
 
 
-def _figure(figsize):
+def _figure(figsize: tuple[float, float]) -> "Figure":
+    """A figure of `figsize` inches at `DPI`, laid out by matplotlib's constrained layout."""
     from matplotlib.figure import Figure
 
     return Figure(figsize=figsize, dpi=DPI, layout="constrained")
 
 
-def _save(fig, path):
+def _save(fig: "Figure", path: StrPath) -> pathlib.Path:
     """Writes `fig` to `path` atomically and returns the path."""
     with atomic_files.atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=DPI)
     return pathlib.Path(path)
 
 
-def learning_curve(metrics, path, title=None):
+def learning_curve(metrics: "Metrics", path: StrPath, title: str | None = None) -> pathlib.Path:
     """Plots one run's mean return per iteration, with the band from its min to max return.
 
     Args:
@@ -40,6 +52,9 @@ def learning_curve(metrics, path, title=None):
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: unless the metrics are one run's, `[I]`.
     """
     mean = np.asarray(metrics.mean_return)
     low, high = np.asarray(metrics.min_return), np.asarray(metrics.max_return)
@@ -62,7 +77,9 @@ def learning_curve(metrics, path, title=None):
     return _save(fig, path)
 
 
-def sweep_curves(median, q25, q75, solved_fraction, labels, solved_return, path):
+def sweep_curves(median: npt.ArrayLike, q25: npt.ArrayLike, q75: npt.ArrayLike,
+                 solved_fraction: npt.ArrayLike, labels: Iterable[str], solved_return: float,
+                 path: StrPath) -> pathlib.Path:
     """Plots a sweep: median return with its interquartile band, and the fraction of seeds solved.
 
     Args:
@@ -76,6 +93,9 @@ def sweep_curves(median, q25, q75, solved_fraction, labels, solved_return, path)
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for arrays of other shapes, or not G labels.
     """
     median, q25, q75, solved_fraction = (
         np.asarray(a, dtype=float) for a in (median, q25, q75, solved_fraction)
@@ -109,7 +129,8 @@ def sweep_curves(median, q25, q75, solved_fraction, labels, solved_return, path)
     return _save(fig, path)
 
 
-def throughput_chart(rows, path, title, xlabel="N (environments or seeds)"):
+def throughput_chart(rows: Iterable[Mapping[str, Any]], path: StrPath, title: str,
+                     xlabel: str = "N (environments or seeds)") -> pathlib.Path:
     """Plots throughput against N on log-log axes, one line per implementation.
 
     Args:
@@ -120,8 +141,11 @@ def throughput_chart(rows, path, title, xlabel="N (environments or seeds)"):
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for no row, or a row without those keys or with values that are not positive.
     """
-    by_impl = {}
+    by_impl: dict[str, list[tuple[float, float]]] = {}
     for i, row in enumerate(rows):
         try:
             impl, n, rate = str(row["impl"]), float(row["n"]), float(row["steps_per_s"])
@@ -154,13 +178,20 @@ def throughput_chart(rows, path, title, xlabel="N (environments or seeds)"):
 # --- Comparing settings (`jaxpg.stats`) --------------------------------------------------------
 
 
-def _check_alike(labels, dims, **arrays):
+def _check_alike(labels: Sequence[str], dims: str, **arrays: npt.ArrayLike) -> list[HostArray]:
     """The arrays as floats, all of the first one's shape, with one label per row of it.
 
     Args:
       labels: the settings' names, one per row.
       dims: the names of the dimensions expected, e.g. "GI" for `[G, I]`.
       **arrays: the arrays by the names of their arguments, the first one setting the shape.
+
+    Returns:
+      The arrays as float numpy arrays, in order.
+
+    Raises:
+      ValueError: naming the first array of another shape (or the first one, when it has not
+        `len(dims)` axes or is empty), or `labels` when there is not one per row.
     """
     (first_name, first), *others = arrays.items()
     first = np.asarray(first, dtype=float)
@@ -170,14 +201,17 @@ def _check_alike(labels, dims, **arrays):
     for name, array in others:
         array = np.asarray(array, dtype=float)
         if array.shape != first.shape:
-            raise ValueError(f"{name}: expected shape {first.shape} (as {first_name}), got {array.shape}")
+            raise ValueError(f"{name}: expected shape {first.shape} (as {first_name}), "
+                             f"got {array.shape}")
         checked.append(array)
     if len(labels) != first.shape[0]:
         raise ValueError(f"labels: expected {first.shape[0]} labels, got {len(labels)}")
     return checked
 
 
-def _banded_lines(ax, x, estimate, low, high, labels):
+def _banded_lines(ax: "Axes", x: HostArray, estimate: HostArray, low: HostArray, high: HostArray,
+                  labels: Sequence[str]) -> None:
+    """One line per setting `[G, X]` against `x` `[X]`, in a band from `low` to `high`."""
     for g, label in enumerate(labels):
         (line,) = ax.plot(x, estimate[g], label=label)
         ax.fill_between(x, low[g], high[g], color=line.get_color(), alpha=0.2)
@@ -185,7 +219,9 @@ def _banded_lines(ax, x, estimate, low, high, labels):
     ax.legend(loc="best", fontsize="small")
 
 
-def aggregate_intervals(labels, estimates, path, xlabel="score"):
+def aggregate_intervals(labels: Iterable[str],
+                        estimates: Mapping[str, Sequence[npt.ArrayLike]],
+                        path: StrPath, xlabel: str = "score") -> pathlib.Path:
     """Plots each setting's aggregates as a point within its confidence interval, a panel for each.
 
     Args:
@@ -196,6 +232,9 @@ def aggregate_intervals(labels, estimates, path, xlabel="score"):
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for no estimate, arrays of other shapes, or labels that do not match them.
     """
     labels = list(labels)
     if not estimates:
@@ -217,7 +256,9 @@ def aggregate_intervals(labels, estimates, path, xlabel="score"):
     return _save(fig, path)
 
 
-def performance_profiles(taus, fraction, low, high, labels, path, xlabel="score"):
+def performance_profiles(taus: npt.ArrayLike, fraction: npt.ArrayLike, low: npt.ArrayLike,
+                         high: npt.ArrayLike, labels: Sequence[str], path: StrPath,
+                         xlabel: str = "score") -> pathlib.Path:
     """Plots the fraction of runs scoring above tau against tau, with a band, for each setting.
 
     Args:
@@ -231,11 +272,15 @@ def performance_profiles(taus, fraction, low, high, labels, path, xlabel="score"
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for arrays of other shapes, or labels that do not match them.
     """
     fraction, low, high = _check_alike(list(labels), "GP", fraction=fraction, low=low, high=high)
     taus = np.asarray(taus, dtype=float)
     if taus.shape != fraction.shape[1:]:
-        raise ValueError(f"taus: expected shape {fraction.shape[1:]} (fraction's columns), got {taus.shape}")
+        raise ValueError(f"taus: expected shape {fraction.shape[1:]} (fraction's columns), "
+                         f"got {taus.shape}")
     fig = _figure(FIGSIZE)
     ax = fig.add_subplot()
     _banded_lines(ax, taus, fraction, low, high, labels)
@@ -245,7 +290,9 @@ def performance_profiles(taus, fraction, low, high, labels, path, xlabel="score"
     return _save(fig, path)
 
 
-def iqm_curves(iterations, iqm, low, high, labels, path, solved_return=None):
+def iqm_curves(iterations: npt.ArrayLike, iqm: npt.ArrayLike, low: npt.ArrayLike,
+               high: npt.ArrayLike, labels: Sequence[str], path: StrPath,
+               solved_return: float | None = None) -> pathlib.Path:
     """Plots the IQM over runs per iteration, with its confidence band, for each setting.
 
     Args:
@@ -259,24 +306,30 @@ def iqm_curves(iterations, iqm, low, high, labels, path, solved_return=None):
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for arrays of other shapes, or labels that do not match them.
     """
     iqm, low, high = _check_alike(list(labels), "GI", iqm=iqm, low=low, high=high)
     iterations = np.asarray(iterations)
     if iterations.shape != iqm.shape[1:]:
-        raise ValueError(f"iterations: expected shape {iqm.shape[1:]} (iqm's columns), got {iterations.shape}")
+        raise ValueError(f"iterations: expected shape {iqm.shape[1:]} (iqm's columns), "
+                         f"got {iterations.shape}")
     fig = _figure(FIGSIZE)
     ax = fig.add_subplot()
     if solved_return is not None:
         ax.axhline(solved_return, color="black", linestyle="--", linewidth=1,
                    label=f"solved ({solved_return:g})")
     _banded_lines(ax, iterations, iqm, low, high, labels)
-    ax.xaxis.get_major_locator().set_params(integer=True)
+    # (The default locator is a MaxNLocator, whose `set_params` takes `integer`.)
+    ax.xaxis.get_major_locator().set_params(integer=True)  # type: ignore[call-arg]
     ax.set_xlabel("iteration")
     ax.set_ylabel("IQM of the mean return (CI band)")
     return _save(fig, path)
 
 
-def improvement_heatmap(probability, labels, path):
+def improvement_heatmap(probability: npt.ArrayLike, labels: Sequence[str], path: StrPath
+                        ) -> pathlib.Path:
     """Plots P(row's setting scores above column's) for every pair of settings, values written in.
 
     Args:
@@ -286,6 +339,9 @@ def improvement_heatmap(probability, labels, path):
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for arrays of other shapes, or labels that do not match them.
     """
     (probability,) = _check_alike(list(labels), "GG", probability=probability)
     if probability.shape[1] != len(labels):
@@ -299,8 +355,9 @@ def improvement_heatmap(probability, labels, path):
     return _save(fig, path)
 
 
-def return_heatmap(values, row_labels, column_labels, path, max_return, xlabel=None,
-                   title=None):
+def return_heatmap(values: npt.ArrayLike, row_labels: Sequence[str], column_labels: Sequence[str],
+                   path: StrPath, max_return: float, xlabel: str | None = None,
+                   title: str | None = None) -> pathlib.Path:
     """Plots a return per cell of a table of settings, e.g. the median per physics setting.
 
     Args:
@@ -315,6 +372,10 @@ def return_heatmap(values, row_labels, column_labels, path, max_return, xlabel=N
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for arrays of other shapes, labels that do not match them, or a `max_return`
+        not positive.
     """
     (values,) = _check_alike(list(row_labels), "RC", values=values)
     if values.shape[1] != len(column_labels):
@@ -335,8 +396,9 @@ def return_heatmap(values, row_labels, column_labels, path, max_return, xlabel=N
     return _save(fig, path)
 
 
-def _written_heatmap(fig, ax, values, row_labels, column_labels, colorbar_label, template, light,
-                     **colours):
+def _written_heatmap(fig: "Figure", ax: "Axes", values: HostArray, row_labels: Sequence[str],
+                     column_labels: Sequence[str], colorbar_label: str, template: str,
+                     light: Callable[[float], bool], **colours: Any) -> None:
     """Draws `values` `[R, C]` as an image with a colour bar and labelled rows and columns, each
     value written in its cell (`template`), in black where `light(value)`, else in white."""
     image = ax.imshow(values, **colours)

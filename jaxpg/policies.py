@@ -15,7 +15,11 @@ import numpy as np
 from flax import struct
 
 from jaxpg import runwise, sums
+from jaxpg.types import Action, Observation, Params, PRNGKey
 from jaxpg.validation import check_choice
+
+# The shape of each parameter of a `PolicyNetwork`: {"params": {"Dense_i": {"bias", "kernel"}}}.
+ParameterShapes = dict[str, dict[str, dict[str, tuple[int, ...]]]]
 
 ACTIVATIONS = {
     "elu": nn.elu,
@@ -29,14 +33,27 @@ ACTIVATIONS = {
 }
 
 
-def basic_policy(obs, u=None):
-    """0 (push left) if the pole angle is negative, else 1; any batch shape `[..., 4]`."""
+def basic_policy(obs: Observation, u: jax.Array | None = None) -> Action:
+    """0 (push left) if the pole angle is negative, else 1.
+
+    Args:
+      obs: observations of any batch shape, `[..., 4]`.
+      u: ignored: the policy is deterministic.
+
+    Returns:
+      int32 actions `[...]`.
+    """
     del u  # deterministic
     return jnp.where(obs[..., 2] < 0, 0, 1).astype(jnp.int32)
 
 
-def check_network(hidden, activation):
-    """Raises a ValueError naming `hidden` or `activation` when they are not allowed."""
+def check_network(hidden: Sequence[int], activation: str) -> None:
+    """Checks the layer sizes and the activation of a `PolicyNetwork`.
+
+    Raises:
+      ValueError: naming `hidden` unless every size is a positive integer, or `activation`
+        unless it is one of `ACTIVATIONS`.
+    """
     check_choice("activation", activation, ACTIVATIONS)
     if any(isinstance(h, bool) or not isinstance(h, int | np.integer) or h < 1 for h in hidden):
         raise ValueError(f"hidden: must be positive layer sizes (none: a linear policy), "
@@ -50,39 +67,62 @@ class PolicyNetwork(nn.Module):
     flax's dense layers, which the trainer differentiates as any module's (`jaxpg.runwise`);
     `forward` computes the same logits from the parameters for the fast path and evaluation,
     also for many runs' parameters at once.
+
+    Attributes:
+      hidden: the sizes of the hidden layers; none for a linear policy.
+      activation: the name of the activation after each hidden layer, one of `ACTIVATIONS`.
     """
 
     hidden: Sequence[int] = (5,)
     activation: str = "elu"
 
     @nn.compact
-    def __call__(self, obs):
+    def __call__(self, obs: Observation) -> jax.Array:
+        """The logits `[...]` of P(push left) for observations `[..., 4]`."""
         features = obs
         for size in self.hidden:
             features = ACTIVATIONS[self.activation](_dense(size)(features))
         return _dense(1)(features)[..., 0]
 
 
-def _dense(features):
+def _dense(features: int) -> nn.Dense:
+    """A dense layer of `features` outputs, Glorot-uniform weights and zero biases."""
     return nn.Dense(features, kernel_init=nn.initializers.glorot_uniform())
 
 
-def forward(policy_params, obs, activation):
+def forward(policy_params: Params, obs: Observation, activation: str) -> jax.Array:
     """The logits `[...]` of `PolicyNetwork` for observations `[..., 4]`.
 
     Features lead (`[4, ...]`, not `[..., 4]`), so that XLA vectorises over the batch rather than
     over four or five features. Parameters may carry trailing run axes `[R]` (kernels `[K, N, R]`)
     against observations `[..., R, 4]`: every run's weights then meet its own observations, on the
     fastest-varying axis.
+
+    Args:
+      policy_params: the parameters of a `PolicyNetwork`, `{"params": {"Dense_i": ...}}`.
+      obs: observations `[..., 4]`, or `[..., R, 4]` for R runs' parameters.
+      activation: the network's activation, a key of `ACTIVATIONS`.
+
+    Returns:
+      The logits of P(push left) `[...]` (`[..., R]`).
     """
     return forward_layers(policy_params, obs, activation)[0]
 
 
-def forward_layers(policy_params, obs, activation, offsets=None):
+def forward_layers(policy_params: Params, obs: Observation, activation: str,
+                   offsets: Sequence[jax.Array] | None = None
+                   ) -> tuple[jax.Array, list[jax.Array]]:
     """`forward`'s logits and the input features `[K, ...]` of each dense layer.
 
-    `offsets`, one per layer shaped like its output features `[N, ...]`, are added to the layers'
-    outputs when given: the gradient with respect to them is the cotangent of each layer's output.
+    Args:
+      policy_params: as for `forward`.
+      obs: as for `forward`.
+      activation: as for `forward`.
+      offsets: optional: one per layer, shaped like its output features `[N, ...]`, added to the
+        layers' outputs: the gradient with respect to them is the cotangent of each layer's output.
+
+    Returns:
+      (logits `[...]`, the input features of each layer, `[K, ...]` each, features first).
     """
     layers = policy_params["params"]
     features = jnp.moveaxis(obs, -1, 0)
@@ -98,20 +138,29 @@ def forward_layers(policy_params, obs, activation, offsets=None):
     return features[0], inputs
 
 
-def _along(weights, x):
-    """`weights` `[N, *runs]` shaped to broadcast against one feature of `x` `[K, *batch, *runs]`."""
+def _along(weights: jax.Array, x: jax.Array) -> jax.Array:
+    """`weights` `[N, *runs]` shaped to broadcast against one feature of `x` `[K, *batch, *runs]`:
+    `[N, 1, ..., 1, *runs]`."""
     runs = weights.ndim - 1
     return weights.reshape(weights.shape[0], *(1,) * (x.ndim - 1 - runs), *weights.shape[1:])
 
 
 @jax.custom_vjp
-def dense(x, kernel, bias):
+def dense(x: jax.Array, kernel: jax.Array, bias: jax.Array) -> jax.Array:
     """Output features `[N, ...]`: `sum_k x[k] * kernel[k] + bias`, for input features `[K, ...]`.
 
     The policy's matrices are tiny: written as K multiply-adds over whole batches they fuse with
     the activations and the physics around them instead of becoming one small matrix-multiply call
     per layer and step. The gradient sums over the batch in a fixed order (`sums.invariant_sum`),
     so it rounds the same for a run alone as for a run in a sweep.
+
+    Args:
+      x: input features `[K, *batch]`, or `[K, *batch, *runs]`.
+      kernel: `[K, N]`, or `[K, N, *runs]`.
+      bias: `[N]`, or `[N, *runs]`.
+
+    Returns:
+      Output features `[N, *batch]` (`[N, *batch, *runs]`).
     """
     out = x[0] * _along(kernel[0], x)
     for k in range(1, x.shape[0]):
@@ -119,11 +168,15 @@ def dense(x, kernel, bias):
     return out + _along(bias, x)
 
 
-def _dense_fwd(x, kernel, bias):
+def _dense_fwd(x: jax.Array, kernel: jax.Array, bias: jax.Array
+               ) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+    """`dense`'s output and the residuals (x, kernel) its gradient needs."""
     return dense(x, kernel, bias), (x, kernel)
 
 
-def _dense_bwd(residuals, grad):
+def _dense_bwd(residuals: tuple[jax.Array, jax.Array], grad: jax.Array
+               ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The cotangents of (x, kernel, bias) from that of `dense`'s output `[N, ...]`."""
     x, kernel = residuals
     runs = kernel.ndim - 2
     batch = tuple(range(x.ndim - 1 - runs))  # the batch axes once the feature axis is last
@@ -143,26 +196,46 @@ def _dense_bwd(residuals, grad):
 dense.defvjp(_dense_fwd, _dense_bwd)
 
 
-def init_network(key, network):
-    """Initial `policy_params` of a policy module (a `PolicyNetwork` or any other), from
-    `network.init` on one observation."""
+def init_network(key: PRNGKey, network: nn.Module) -> Params:
+    """Initial `policy_params` of a policy module (a `PolicyNetwork` or any other).
+
+    Args:
+      key: PRNG key.
+      network: the module, initialised by `network.init` on one observation `[4]`.
+
+    Returns:
+      Its parameters, without run axes.
+    """
     return network.init(key, jnp.zeros((4,)))
 
 
-def parameter_shapes(network):
+def parameter_shapes(network: PolicyNetwork) -> ParameterShapes:
     """The shape of each parameter of `init_network(key, network)`, under the same keys."""
     sizes = (4, *network.hidden, 1)
     return {"params": {f"Dense_{i}": {"bias": (n,), "kernel": (k, n)}
                        for i, (k, n) in enumerate(zip(sizes[:-1], sizes[1:]))}}
 
 
-def _shape_leaves(network):
+def _shape_leaves(network: PolicyNetwork
+                  ) -> tuple[list[tuple[int, ...]], jax.tree_util.PyTreeDef]:
+    """The parameter shapes of `network` in `jax.tree.leaves` order, and their tree structure."""
     return jax.tree.flatten(parameter_shapes(network), is_leaf=lambda x: isinstance(x, tuple))
 
 
-def flatten(policy_params, network):
-    """Every parameter in one vector `[P, *runs]`, in `jax.tree.leaves` order, keeping any
-    trailing run axes: the parameters (or their gradients) of R runs as `[P, R]`."""
+def flatten(policy_params: Params, network: PolicyNetwork) -> jax.Array:
+    """Every parameter in one vector `[P, *runs]`, in `jax.tree.leaves` order.
+
+    Args:
+      policy_params: the parameters of `network` (or their gradients), each leaf its shape
+        followed by any trailing run axes.
+      network: the `PolicyNetwork`.
+
+    Returns:
+      `[P, *runs]`: the parameters of R runs as `[P, R]`.
+
+    Raises:
+      ValueError: if the parameters are not shaped as `network`'s.
+    """
     shapes, tree = _shape_leaves(network)
     leaves = jax.tree.leaves(policy_params)
     if jax.tree.structure(policy_params) != tree or any(
@@ -173,22 +246,37 @@ def flatten(policy_params, network):
                             for leaf, shape in zip(leaves, shapes)])
 
 
-def unflatten(flat, network):
-    """The `policy_params` of a vector `[P, *runs]` from `flatten`, as arrays of the same kind
-    (numpy ones on the host, jax ones in a traced program)."""
+def unflatten(flat: jax.Array | np.ndarray, network: PolicyNetwork) -> Params:
+    """The `policy_params` of a vector `[P, *runs]` from `flatten`, each leaf `[*shape, *runs]`.
+
+    The leaves are arrays of the same kind as `flat` (numpy ones on the host, JAX ones in a traced
+    program).
+    """
     shapes, tree = _shape_leaves(network)
     bounds = np.cumsum([0, *(math.prod(shape) for shape in shapes)])
     return jax.tree.unflatten(tree, [flat[start:stop].reshape(*shape, *flat.shape[1:])
                                      for shape, start, stop in zip(shapes, bounds, bounds[1:])])
 
 
-def logits(module, policy_params, obs):
+def logits(module: nn.Module, policy_params: Params, obs: Observation) -> jax.Array:
     """The logit of P(push left) `[...]` of a policy module for observations `[..., 4]`.
 
     The module returns that logit as `[...]` or `[..., 1]`, or the logits of (left, right) as
     `[..., 2]`, whose difference it is.
+
+    Args:
+      module: a flax policy module.
+      policy_params: its parameters.
+      obs: observations `[..., 4]`.
+
+    Returns:
+      The logits `[...]`.
+
+    Raises:
+      ValueError: for a module's output of any other shape.
     """
-    out = module.apply(policy_params, obs)
+    # (flax types `apply` as also returning a state, which it does only when asked to mutate.)
+    out: jax.Array = module.apply(policy_params, obs)  # type: ignore[assignment]
     batch = obs.shape[:-1]
     if out.shape == batch:
         return out
@@ -200,8 +288,16 @@ def logits(module, policy_params, obs):
                      f"{batch}, {(*batch, 1)} or {(*batch, 2)}, got {out.shape}")
 
 
-def sample_action(logit, u):
-    """Pushes left with probability sigmoid(logit): action 1 (right) when u > P(left), as the book."""
+def sample_action(logit: jax.Array, u: jax.Array) -> Action:
+    """Pushes left with probability sigmoid(logit): action 1 (right) when u > P(left), as the book.
+
+    Args:
+      logit: the logits of P(push left) `[...]`.
+      u: uniforms in [0, 1) `[...]`.
+
+    Returns:
+      int32 actions `[...]`.
+    """
     return (u > jax.nn.sigmoid(logit)).astype(jnp.int32)
 
 
@@ -212,13 +308,19 @@ class NetworkPolicy:
 
     A pytree of the parameters (the module and `runs` are static): a compiled function that takes
     it as an argument serves every policy of the same module and shapes without compiling again.
+
+    Attributes:
+      network: static: the policy module, a `PolicyNetwork` or any other (`logits`).
+      policy_params: its parameters, with any run axes (`network_policy`).
+      runs: static: whether another module's parameters carry a trailing run axis.
     """
 
     network: nn.Module = struct.field(pytree_node=False)
     policy_params: dict
     runs: bool = struct.field(pytree_node=False, default=False)
 
-    def __call__(self, obs, u):
+    def __call__(self, obs: Observation, u: jax.Array) -> Action:
+        """Actions `[E]` (`[E, R]`) for observations `[E, 4]` (`[E, R, 4]`) and uniforms `u`."""
         if isinstance(self.network, PolicyNetwork):
             return sample_action(forward(self.policy_params, obs, self.network.activation), u)
         # Any other module's sums in a fixed order (`runwise`), alone as beside other runs, so
@@ -228,7 +330,8 @@ class NetworkPolicy:
             run_logits(self.policy_params, jnp.moveaxis(obs, -2, -1) if self.runs else obs), u)
 
 
-def network_policy(network, policy_params, runs=False):
+def network_policy(network: nn.Module, policy_params: Params, runs: bool = False
+                   ) -> NetworkPolicy:
     """A policy module as a policy `(obs [E, 4], u [E]) -> action [E]` that samples its actions.
 
     Args:

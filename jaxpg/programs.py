@@ -1,9 +1,10 @@
-"""The compiled training programs: `init` and `iterate` of a `TrainConfig`, kept by `executables`."""
+"""The compiled training programs of a `TrainConfig`: `init`, `iterate`, kept by `executables`."""
 
+import concurrent.futures
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -11,57 +12,78 @@ import numpy as np
 
 from jaxpg import cartpole, executables, policies
 from jaxpg.iteration import (
+    Evaluation,
     Metrics,
+    TrainState,
     check_config,
     evaluate_runs,
     init_runs,
     is_run_alone,
     iterate,
 )
-from jaxpg.train_config import TrainConfig
+from jaxpg.train_config import Hyperparams, TrainConfig
+from jaxpg.types import Array, ArrayLike, Params
 
 ITERATIONS_PER_CALL = 10  # iterations a call of the program runs at most
 
 
 class Program(NamedTuple):
-    """The compiled training of R runs at once, for one `TrainConfig`: `executables.Stored`
-    functions (`iterate` an `AloneOrTogether` of two), which `run` prepares before it calls them."""
+    """The compiled training of R runs at once, for one `TrainConfig`.
+
+    Its functions are `executables.Stored` (`iterate` an `AloneOrTogether` of two), which
+    `schedule.train_blocks` prepares before it calls them.
+
+    Attributes:
+      config: the `TrainConfig` compiled (`compiled_program`).
+      physics_in_runs: whether the runs' `Hyperparams` carry their physics (`env`).
+      extra: the names of the loss's metrics, `Metrics.extra`, in leaf order.
+      init: `(keys [R, 2], Hyperparams [R], optional policy_params of one run) -> TrainState`.
+      iterate: `(TrainState, Hyperparams [R], count: int32 scalar) -> (TrainState, metrics)`:
+        `count` iterations (at most `ITERATIONS_PER_CALL`), whose metrics' leaves, stacked
+        `[ITERATIONS_PER_CALL, fields, R]` in one array, fill its first `count` rows. It consumes
+        (donates) the state it is given.
+      evaluate: `(TrainState, Hyperparams [R], episodes: static int) -> Evaluation [R, N]`.
+    """
 
     config: TrainConfig
-    physics_in_runs: bool  # whether the runs' `Hyperparams` carry their physics (`env`)
-    extra: tuple[str, ...]  # the names of the loss's metrics, `Metrics.extra`, in leaf order
-    # (keys [R, 2], Hyperparams [R], optional policy_params of one run) -> TrainState [R]
-    init: Callable
-    # (TrainState [R], Hyperparams [R], count: int32 scalar) -> (TrainState [R], the metrics'
-    # leaves stacked [ITERATIONS_PER_CALL, fields, R]): `count` iterations (at most
-    # ITERATIONS_PER_CALL), whose metrics fill the first `count` rows; one array per call.
-    iterate: Callable  # an `AloneOrTogether`
-    # (TrainState [R], Hyperparams [R], episodes: static int) -> `iteration.Evaluation` [R, N]
-    evaluate: Callable
+    physics_in_runs: bool
+    extra: tuple[str, ...]
+    init: executables.Stored
+    iterate: "AloneOrTogether"
+    evaluate: Callable[..., Evaluation]
 
-    def metrics(self, rows):
-        """`Metrics` from `iterate`'s stacked metrics `[fields, ...]`: leaves `[...]`."""
+    def metrics(self, rows: ArrayLike) -> Metrics:
+        """`Metrics` from `iterate`'s stacked metrics.
+
+        Args:
+          rows: `[fields, ...]`, a row per field of `Metrics` and per name of `extra`.
+
+        Returns:
+          `Metrics` with numpy leaves `[...]`.
+        """
         rows = np.asarray(rows)
         fields = len(Metrics._fields) - 1
-        return Metrics(*rows[:fields], extra=dict(zip(self.extra, rows[fields:])))
+        return Metrics(*rows[:fields],  # type: ignore[misc]  # (mypy lets *rows reach `extra`)
+                       extra=dict(zip(self.extra, rows[fields:])))
 
-    def hyperparams(self, runs):
-        """`Hyperparams` of `runs` runs as the program takes them (the config's values)."""
+    def hyperparams(self, runs: int) -> Hyperparams:
+        """`Hyperparams` of `runs` runs as the program takes them, the config's values: `[runs]`."""
         hyperparams = self.config.hyperparams
         env = self.config.env_params if self.physics_in_runs else None
         return hyperparams._replace(env=env).per_run(runs)
 
-    def policy_params(self, params):
-        """The policy's parameters (leaves `[..., R]`) of a `TrainState`'s `params`."""
+    def policy_params(self, params: Params) -> Params:
+        """The policy's parameters, leaves `[..., R]`, of a `TrainState`'s `params`."""
         if self.config.hand_gradient:
-            return policies.unflatten(params, self.config.network)
+            return policies.unflatten(params, cast(policies.PolicyNetwork, self.config.network))
         return params["policy"]
 
 
-def compiled_program(config, physics_in_runs=False):
+def compiled_program(config: TrainConfig, physics_in_runs: bool = False) -> Program:
     """The jitted `Program` of `config`; `iterate` consumes (donates) the state it is given.
 
-    Its functions keep their compiled programs on disk while `executables.keep_programs` is in effect.
+    Its functions keep their compiled programs on disk while `executables.keep_programs` is in
+    effect.
 
     Configs that differ only in how many iterations run, what counts as solved, or the values of
     their hyperparameters (but for whether the entropy coefficient is 0: only then can the fast
@@ -69,6 +91,14 @@ def compiled_program(config, physics_in_runs=False):
     arguments of the program. So do configs that differ in their physics, where
     `physics_in_runs`: the runs' `Hyperparams` then carry it (`env`), rather than the program
     (`train_config.compiled_physics`).
+
+    Args:
+      config: the `TrainConfig`.
+      physics_in_runs: whether the runs' `Hyperparams` carry their physics; else the program
+        holds `config`'s.
+
+    Returns:
+      The `Program`, the same object for every config that shares it (up to a cache's size).
     """
     env = config.env_params
     if physics_in_runs:  # the values come with the runs' `Hyperparams`; only static fields count
@@ -79,48 +109,59 @@ def compiled_program(config, physics_in_runs=False):
         entropy_coef=float(config.entropy_coef != 0), env=env), physics_in_runs)
 
 
-# Initialising runs once: it is compiled for speed of compilation, not of running, without
-# XLA's CPU fusion emitters (about 0.1 s sooner).
-INIT_OPTIONS = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
-# The iteration of a block of several runs asks for 512-bit vectors (XLA's default is 256), for
-# speed: 1024 seeds trained in 3.70 and 4.30 s instead of 5.50 and 5.69 s, the same bits. A block
-# of one run does not, for its bits: with its loop compiled whole (`jaxpg.xla_options`), 512-bit vectors
-# round some of its episodes differently from the same run's beside others (8 of the book's seeds
-# 0 to 15).
-TOGETHER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
+# Runs are initialised once: compiled for speed of compiling, not of running (docs/performance.md).
+INIT_OPTIONS: dict[str, Any] = {
+    "xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
+# A block of several runs iterates with 512-bit vectors (XLA's default is 256): faster, the same
+# bits (docs/performance.md). A block of one run must not: with its loop compiled whole
+# (`jaxpg.xla_options`), 512-bit vectors round some of its episodes otherwise than the same run's
+# beside others.
+TOGETHER_OPTIONS: dict[str, Any] = {"xla_cpu_prefer_vector_width": 512}
 
 
 class AloneOrTogether(NamedTuple):
-    """A function whose first argument is a `TrainState`, as two `executables.Stored` functions
-    compiled with different options: `alone` for a run alone (a block of one run), `together` for
-    several runs. It calls, prepares, lowers or traces the one for its arguments."""
+    """A function whose first argument is a `TrainState`, as two functions compiled differently.
+
+    It calls, prepares, lowers or traces the one for its arguments (`is_run_alone`).
+
+    Attributes:
+      alone: the function for a run alone (a block of one run).
+      together: the function for several runs (`TOGETHER_OPTIONS`).
+    """
 
     alone: executables.Stored
     together: executables.Stored
 
-    def _for(self, train_state):
+    def _for(self, train_state: TrainState) -> executables.Stored:
+        """The function for `train_state`'s runs."""
         return self.alone if is_run_alone(train_state) else self.together
 
-    def __call__(self, *args):
+    def __call__(self, *args: Any) -> Any:
+        """Calls the function for `args[0]`'s runs."""
         return self._for(args[0])(*args)
 
-    def prepare(self, *args):
+    def prepare(self, *args: Any) -> concurrent.futures.Future[executables.Program]:
+        """Starts compiling the function for `args` (`executables.Stored.prepare`)."""
         return self._for(args[0]).prepare(*args)
 
-    def lower(self, *args):
+    def lower(self, *args: Any) -> jax.stages.Lowered:
+        """The lowered function for `args` (`jax.jit`'s `lower`)."""
         return self._for(args[0]).lower(*args)
 
-    def eval_shape(self, *args):
+    def eval_shape(self, *args: Any) -> Any:
+        """The shapes of the function's outputs for `args` (`jax.jit`'s `eval_shape`)."""
         return self._for(args[0]).eval_shape(*args)
 
 
 @functools.lru_cache(maxsize=32)
-def _program(config, physics_in_runs):
+def _program(config: TrainConfig, physics_in_runs: bool) -> Program:
+    """The `Program` of a config as `compiled_program` normalises it, checked (`check_config`)."""
     extra = check_config(config)
     # A user's module, loss or optimizer is known by name only, not by its code: not kept.
     stored = functools.partial(executables.Stored, settings=config, keep=config.built_in)
 
-    def jit_iterate(options):
+    def jit_iterate(options: dict[str, Any] | None) -> jax.stages.Wrapped:
+        """`_iterate_stacked` jitted with XLA's `options`, donating the state."""
         return jax.jit(functools.partial(_iterate_stacked, config, extra), donate_argnums=0,
                        compiler_options=options)
 
@@ -134,14 +175,23 @@ def _program(config, physics_in_runs):
     )
 
 
-def _iterate_stacked(config, extra, train_state, hyperparams, count):
-    def one(i, carry):
+def _iterate_stacked(config: TrainConfig, extra: tuple[str, ...], train_state: TrainState,
+                     hyperparams: Hyperparams, count: Array) -> tuple[TrainState, Array]:
+    """Up to `ITERATIONS_PER_CALL` iterations, `count` of them, with their metrics stacked.
+
+    Returns:
+      (TrainState, float `[ITERATIONS_PER_CALL, fields, R]`: the first `count` rows hold each
+      iteration's metrics' leaves, the rest zeros).
+    """
+
+    def one(i: Array, carry: tuple[TrainState, Array]) -> tuple[TrainState, Array]:
+        """Iteration `i`, its metrics written into row `i` of the history."""
         train_state, history = carry
         train_state, metrics = iterate(config, train_state, hyperparams)
         return train_state, jax.lax.dynamic_update_index_in_dim(
             history, jnp.stack(jax.tree.leaves(metrics)), i, 0)
 
     history = jnp.zeros((ITERATIONS_PER_CALL, len(Metrics._fields) - 1 + len(extra),
-                         *hyperparams.learning_rate.shape), jnp.result_type(float))
+                         *jnp.shape(hyperparams.learning_rate)), jnp.result_type(float))
     return jax.lax.fori_loop(0, jnp.minimum(count, ITERATIONS_PER_CALL), one,
                              (train_state, history))

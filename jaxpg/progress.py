@@ -7,12 +7,23 @@ when progress is off it yields None, so training can skip the work of reporting.
 import contextlib
 import sys
 import time
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from jaxpg.iteration import Metrics
+
+# Called on the host once per iteration: (iteration, `Metrics` of the runs training) -> None.
+OnIteration = Callable[[int, "Metrics"], None]
+
 
 class _Bar:
-    def __init__(self, total, stream, label):
+    """The progress of one training: a line per iteration, rewritten in place on a terminal."""
+
+    def __init__(self, total: int, stream: TextIO, label: str) -> None:
+        """A bar for `total` iterations written to `stream`, each line after `label`."""
         self.total = total
         self.stream = stream
         self.label = f"{label}: " if label else ""
@@ -20,7 +31,8 @@ class _Bar:
         self.start = time.perf_counter()
         self.every = max(1, total // 10)  # in logs, about ten lines per run
 
-    def update(self, iteration, metrics):
+    def update(self, iteration: int, metrics: "Metrics") -> None:
+        """Shows iteration `iteration` (from 0): every one on a terminal, about ten in a log."""
         done = iteration + 1
         if not self.interactive and done % self.every and done != self.total:
             return
@@ -33,14 +45,16 @@ class _Bar:
         self.stream.write(("\r" + line) if self.interactive else line + "\n")
         self.stream.flush()
 
-    def close(self):
+    def close(self) -> None:
+        """Ends the line rewritten on a terminal."""
         if self.interactive:
             self.stream.write("\n")
             self.stream.flush()
 
 
 @contextlib.contextmanager
-def bar(total, enabled=True, stream=None, label=""):
+def bar(total: int, enabled: bool = True, stream: TextIO | None = None, label: str = ""
+        ) -> Iterator[OnIteration | None]:
     """Shows the progress of `total` iterations on stderr while the block runs.
 
     Args:
@@ -63,15 +77,19 @@ def bar(total, enabled=True, stream=None, label=""):
         current.close()
 
 
-def together(*hooks):
-    """One `on_iteration(iteration, metrics)` that calls each of `hooks` not None, in order; None
-    where there is none."""
-    hooks = [hook for hook in hooks if hook is not None]
-    if not hooks:
+def together(*hooks: OnIteration | None) -> OnIteration | None:
+    """One `on_iteration(iteration, metrics)` that calls each of `hooks` not None, in order.
+
+    Returns:
+      That function, or None where every hook is None.
+    """
+    called = [hook for hook in hooks if hook is not None]
+    if not called:
         return None
 
-    def on_iteration(iteration, metrics):
-        for hook in hooks:
+    def on_iteration(iteration: int, metrics: "Metrics") -> None:
+        """Calls every hook with `iteration` and `metrics`."""
+        for hook in called:
             hook(iteration, metrics)
 
     return on_iteration

@@ -8,25 +8,39 @@ complete.
 """
 
 import warnings
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import numpy as np
 
 from jaxpg import budget, policies, programs, progress, schedule, xla_options
+from jaxpg.iteration import Metrics, TrainResult
 from jaxpg.train_config import TrainConfig
+from jaxpg.types import ArrayLike, HostArray, Params
 from jaxpg.validation import check_int
 
 
-def run_keys(seeds):
-    """One PRNG key per seed, `[R, 2]` uint32: `jax.random.PRNGKey(seed)`, made on the host.
+def run_keys(seeds: ArrayLike | Sequence[int]) -> HostArray:
+    """One PRNG key per seed, made on the host: `jax.random.PRNGKey(seed)` of each.
 
     Threefry's key of a 32-bit seed is its high word (0) and the seed itself.
+
+    Args:
+      seeds: integers `[R]` in [0, 2**32).
+
+    Returns:
+      uint32 `[R, 2]`, a numpy array.
     """
     seeds = np.asarray(seeds, dtype=np.uint32)
     return np.stack([np.zeros_like(seeds), seeds], axis=-1)
 
 
-def train(config=TrainConfig(), seed=0, init_params=None, on_iteration=None, show_progress=True):
+# A frozen dataclass: one default instance is safe to share.
+def train(config: TrainConfig = TrainConfig(), seed: int = 0,  # noqa: B008
+          init_params: Params | None = None,
+          on_iteration: Callable[[int, Metrics], None] | None = None,
+          show_progress: bool = True) -> TrainResult:
     """Trains one policy.
 
     Args:
@@ -40,6 +54,11 @@ def train(config=TrainConfig(), seed=0, init_params=None, on_iteration=None, sho
 
     Returns:
       `TrainResult`: the final `policy_params` and `Metrics` with `[iterations]` leaves.
+
+    Raises:
+      ValueError: for a config that is not a `TrainConfig`, a seed out of range, training that
+        needs more memory than the machine's (`budget.check`), or `init_params` not shaped as
+        the policy's parameters; each before anything compiles.
     """
     if not isinstance(config, TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
@@ -53,16 +72,28 @@ def train(config=TrainConfig(), seed=0, init_params=None, on_iteration=None, sho
     first_run = None if on_iteration is None else (
         lambda i, metrics: on_iteration(i, jax.tree.map(lambda leaf: leaf[0], metrics)))
     with progress.bar(config.iterations, enabled=show_progress) as shown:
-        (result,) = schedule.train_blocks(program, config.iterations, [(run_keys([seed]), hyperparams)],
-                                 progress.together(shown, first_run), init_params)
+        (result,) = schedule.train_blocks(
+            program, config.iterations, [(run_keys([seed]), hyperparams)],
+            progress.together(shown, first_run), init_params)
     result = jax.tree.map(lambda leaf: leaf[0], result)
     warn_if_diverged(jax.tree.map(lambda leaf: leaf[None], result.metrics))
     return result
 
 
-def check_init_params(config, init_params):
-    """`init_params` as arrays of the policy's dtype; a ValueError unless they have the shapes
-    of the policy's own parameters (`jax.eval_shape` of its `init`)."""
+def check_init_params(config: TrainConfig, init_params: Params) -> Params:
+    """`init_params` as numpy arrays of the policy's dtypes, checked against the policy's shapes.
+
+    Args:
+      config: the `TrainConfig` whose policy (`TrainConfig.network`) they are for.
+      init_params: one run's policy parameters.
+
+    Returns:
+      The parameters as numpy arrays.
+
+    Raises:
+      ValueError: unless they have the tree and shapes of the policy's own parameters
+        (`jax.eval_shape` of its `init`).
+    """
     want = jax.eval_shape(lambda key: policies.init_network(key, config.network),
                           jax.ShapeDtypeStruct((2,), np.uint32))
     try:
@@ -77,17 +108,29 @@ def check_init_params(config, init_params):
     return params
 
 
-def first_nonfinite(metrics):
-    """The first iteration of each run whose loss or gradient norm is not finite, -1 where none
-    is: `Metrics` `[..., I]` -> ints `[...]`. The parameters take a non-finite gradient's step,
-    so this is also where they may stop being finite."""
+def first_nonfinite(metrics: Metrics) -> HostArray:
+    """The first iteration of each run whose loss or gradient norm is not finite.
+
+    The parameters take a non-finite gradient's step, so this is also where they may stop being
+    finite.
+
+    Args:
+      metrics: `Metrics` with `[..., I]` leaves.
+
+    Returns:
+      ints `[...]`: each run's first such iteration, -1 where there is none.
+    """
     bad = ~(np.isfinite(metrics.loss) & np.isfinite(metrics.grad_norm))
     return np.where(bad.any(axis=-1), bad.argmax(axis=-1), -1)
 
 
-def warn_if_diverged(metrics, labels=None):
-    """Warns once per run of `Metrics` `[R, I]` that diverged (`first_nonfinite`), naming its
-    first such iteration."""
+def warn_if_diverged(metrics: Metrics, labels: Sequence[Any] | None = None) -> None:
+    """Warns, with a `RuntimeWarning`, once per run that diverged (`first_nonfinite`).
+
+    Args:
+      metrics: `Metrics` with `[R, I]` leaves.
+      labels: optional: how each run's warning names it (` of {label}`).
+    """
     for r, first in enumerate(first_nonfinite(metrics)):
         if first >= 0:
             which = "" if labels is None else f" of {labels[r]}"

@@ -9,19 +9,26 @@ but the pixels along those outlines.
 
 import functools
 import pathlib
+from typing import Any
 
 import jax
 import numpy as np
+import numpy.typing as npt
 
 from jaxpg import atomic_files, cartpole, rollout
+from jaxpg.atomic_files import StrPath
+from jaxpg.cartpole import CartPoleParams, CartPoleState
+from jaxpg.types import HostArray, Policy
 from jaxpg.validation import check_int
+
+Colour = tuple[int, int, int]  # red, green, blue, each 0 to 255
 
 SCREEN_WIDTH = 600
 SCREEN_HEIGHT = 400
-CART_COLOUR = (0, 0, 0)
-POLE_COLOUR = (202, 152, 101)
-AXLE_COLOUR = (129, 132, 203)
-TRACK_COLOUR = (0, 0, 0)
+CART_COLOUR: Colour = (0, 0, 0)
+POLE_COLOUR: Colour = (202, 152, 101)
+AXLE_COLOUR: Colour = (129, 132, 203)
+TRACK_COLOUR: Colour = (0, 0, 0)
 
 # Gymnasium's drawing constants, in pixels; y grows upwards until the final flip.
 _POLE_WIDTH = 10.0
@@ -31,7 +38,8 @@ _CART_Y = 100  # the track, through the middle of the cart
 _AXLE_OFFSET = _CART_HEIGHT / 4.0
 
 
-def render_frame(state, env_params=cartpole.V1):
+def render_frame(state: CartPoleState | npt.ArrayLike, env_params: CartPoleParams = cartpole.V1
+                 ) -> HostArray:
     """Draws the cart and pole as Gymnasium's `render()` does in `rgb_array` mode.
 
     Args:
@@ -40,6 +48,9 @@ def render_frame(state, env_params=cartpole.V1):
 
     Returns:
       uint8 RGB image `[400, 600, 3]`, or `[B, 400, 600, 3]` for a batch of states.
+
+    Raises:
+      ValueError: for values of another shape, or values that are not finite.
     """
     if isinstance(state, cartpole.CartPoleState):
         state = state.to_array()
@@ -62,7 +73,7 @@ def render_frame(state, env_params=cartpole.V1):
     return frames if values.ndim == 2 else frames[0]
 
 
-def _draw(frame, cart_x, theta, pole_length):
+def _draw(frame: HostArray, cart_x: float, theta: float, pole_length: float) -> None:
     """Draws one scene onto the white `frame` `[H, W, 3]`, in Gymnasium's order."""
     # pygame draws with y upwards and flips the image at the end; draw through a flipped view.
     surface = frame[::-1]
@@ -83,7 +94,8 @@ def _draw(frame, cart_x, theta, pole_length):
     surface[_CART_Y] = TRACK_COLOUR  # a black line across the whole width
 
 
-def _fill_polygon(surface, xs, ys, colour):
+def _fill_polygon(surface: HostArray, xs: npt.ArrayLike, ys: npt.ArrayLike, colour: Colour
+                  ) -> None:
     """pygame's `gfxdraw.filled_polygon`: SDL_gfx's scanline fill, vectorised over rows.
 
     Vertices are truncated to integers (as pygame converts them); each row y between the lowest
@@ -120,12 +132,13 @@ def _fill_polygon(surface, xs, ys, colour):
         )
 
 
-def _round_fixed(value):
+def _round_fixed(value: HostArray) -> HostArray:
     """SDL_gfx's rounding of a 16.16 fixed-point number to the nearest integer."""
     return (value >> 16) + ((value & 32768) >> 15)
 
 
-def _fill_spans(surface, rows, starts, ends, colour):
+def _fill_spans(surface: HostArray, rows: HostArray, starts: HostArray, ends: HostArray,
+                colour: Colour) -> None:
     """Paints the inclusive spans `starts[i]..ends[i]` of `rows[i]`, clipped to the surface."""
     width = surface.shape[1]
     starts, ends = np.clip(starts, 0, width), np.clip(ends, -1, width - 1)
@@ -141,7 +154,7 @@ def _fill_spans(surface, rows, starts, ends, colour):
 
 
 @functools.lru_cache(maxsize=8)
-def _circle_half_widths(radius):
+def _circle_half_widths(radius: int) -> HostArray:
     """Half-widths, by row offset 0..radius, of SDL_gfx's `filledCircle` (midpoint algorithm)."""
     half = [0] * (radius + 1)
     cx, cy, df, d_e, d_se = 0, radius, 1 - radius, 3, 5 - 2 * radius
@@ -161,7 +174,7 @@ def _circle_half_widths(radius):
     return np.array(half)
 
 
-def _fill_circle(surface, cx, cy, radius, colour):
+def _fill_circle(surface: HostArray, cx: int, cy: int, radius: int, colour: Colour) -> None:
     """pygame's `gfxdraw.filled_circle` centred on the integer pixel (cx, cy)."""
     half = _circle_half_widths(radius)
     offsets = np.arange(-radius, radius + 1)
@@ -171,7 +184,8 @@ def _fill_circle(surface, cx, cy, radius, colour):
     _fill_spans(surface, rows[on_surface], (cx - half)[on_surface], (cx + half)[on_surface], colour)
 
 
-def render_episode(policy, seed=0, env_params=cartpole.V1, max_steps=500):
+def render_episode(policy: Policy, seed: int = 0, env_params: CartPoleParams = cartpole.V1,
+                   max_steps: int = 500) -> HostArray:
     """Plays one episode with `policy` and draws it, from the first state to the last.
 
     Args:
@@ -183,6 +197,9 @@ def render_episode(policy, seed=0, env_params=cartpole.V1, max_steps=500):
     Returns:
       uint8 frames `[T, 400, 600, 3]`, T <= max_steps + 1: the initial state and the state after
       each step.
+
+    Raises:
+      ValueError: for a `max_steps` below 1, or a policy that gave an action other than 0 or 1.
     """
     check_int("max_steps", max_steps)
     # One step more than drawn, so that the state after the last drawn step is observed too.
@@ -193,7 +210,8 @@ def render_episode(policy, seed=0, env_params=cartpole.V1, max_steps=500):
     return render_frame(states, env_params)
 
 
-def save_animation(frames, path, fps=50):
+def save_animation(frames: npt.ArrayLike, path: StrPath, fps: float = 50
+                   ) -> pathlib.Path:
     """Writes frames as an animated GIF, or as MP4 when `path` ends with `.mp4`.
 
     MP4 needs the optional `imageio-ffmpeg` package. The file is replaced atomically.
@@ -205,6 +223,10 @@ def save_animation(frames, path, fps=50):
 
     Returns:
       The `pathlib.Path` written.
+
+    Raises:
+      ValueError: for frames of another shape or dtype, an fps not positive, or a path that
+        `check_animation_path` rejects.
     """
     import imageio.v3 as iio
 
@@ -218,7 +240,7 @@ def save_animation(frames, path, fps=50):
     path = check_animation_path(path)
     if path.suffix.lower() == ".mp4":
         # 8-pixel blocks divide 600 x 400 exactly; the default 16 would resize the frames.
-        options = {"plugin": "FFMPEG", "fps": fps, "macro_block_size": 8}
+        options: dict[str, Any] = {"plugin": "FFMPEG", "fps": fps, "macro_block_size": 8}
     else:
         # The duration is in milliseconds (GIF keeps hundredths); loop=0 repeats forever.
         options = {"plugin": "pillow", "duration": 1000 / fps, "loop": 0}
@@ -227,10 +249,21 @@ def save_animation(frames, path, fps=50):
     return path
 
 
-def check_animation_path(path, name="path"):
-    """`path` as a Path that `save_animation` can write, checked before anything is drawn: a
-    ValueError naming the argument `name` unless it ends with .gif or .mp4 and a file can be
-    created in its folder (an ImportError for MP4 without imageio-ffmpeg)."""
+def check_animation_path(path: StrPath, name: str = "path") -> pathlib.Path:
+    """`path` as a Path that `save_animation` can write, checked before anything is drawn.
+
+    Args:
+      path: the file to write.
+      name: the argument's name, which a message starts with.
+
+    Returns:
+      `path` as a `pathlib.Path`.
+
+    Raises:
+      ValueError: naming `name` unless `path` ends with .gif or .mp4 and a file can be created in
+        its folder.
+      ImportError: for MP4 without imageio-ffmpeg.
+    """
     path = pathlib.Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):

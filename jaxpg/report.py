@@ -11,8 +11,8 @@ run's score is its held-out evaluation return where every folder has them (`eval
 import functools
 import json
 import pathlib
-from collections.abc import Sequence
-from typing import NamedTuple
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 
@@ -20,8 +20,9 @@ from jaxpg import atomic_files, plots, stats
 from jaxpg.sweeps import SOLVED_WINDOW
 from jaxpg.train_config import HYPERPARAMETERS
 
-SWEEP_FORMAT = "jaxpg-sweep-1"  # summary.json's "format": the folders this version writes and reads
-COMPARISON_FORMAT = "jaxpg-comparison-1"
+# summary.json's "format": the folders this version writes and reads.
+SWEEP_FORMAT = "jaxpg-sweep-1"
+COMPARISON_FORMAT = "jaxpg-comparison-1"  # comparison.json's "format"
 COMPARISON_FILE = "comparison.json"
 PLOT_FILES = ("aggregate_intervals.png", "performance_profiles.png", "iqm_curves.png",
               "improvement.png")
@@ -35,8 +36,8 @@ class Sweep(NamedTuple):
     """The runs of one sweep folder, as the report needs them."""
 
     folder: str  # as the user named it
-    config: dict  # summary.json's config
-    settings: list  # G dicts {"learning_rate": ..., "discount": ...}
+    config: dict[str, Any]  # summary.json's config
+    settings: list[dict[str, float]]  # G dicts {"learning_rate": ..., "discount": ...}
     scores: np.ndarray  # [G, S] one score per run
     curves: np.ndarray  # [G, S, I] each run's mean return per iteration
     score: str  # what the scores are, in words
@@ -45,16 +46,31 @@ class Sweep(NamedTuple):
 class _Unit(NamedTuple):
     """One setting of one folder: what the comparison compares."""
 
-    label: str
-    folder: str
-    setting: dict  # {"learning_rate": ..., "discount": ...}
+    label: str  # the setting in words, after its folder where there are several
+    folder: str  # as the user named it
+    setting: dict[str, float]  # {"learning_rate": ..., "discount": ...}
     scores: np.ndarray  # [S]
     curves: np.ndarray  # [S, I]
 
 
-def setting_label(setting: dict) -> str:
-    """A grid setting in words, e.g. "lr=0.01, discount=0.95, length=1": the learning rate and
-    discount, the entropy coefficient where it is not 0, and the physics the grid names."""
+class _Interval(TypedDict):
+    """How every interval of a comparison is computed: the arguments of the `stats` functions."""
+
+    confidence: float  # the coverage, in (0, 1)
+    reps: int  # bootstrap resamples
+    seed: int  # seeds every bootstrap
+
+
+def setting_label(setting: dict[str, float]) -> str:
+    """A grid setting in words, e.g. "lr=0.01, discount=0.95, length=1".
+
+    Args:
+      setting: a grid setting, as `sweeps.expand_grid` gives it.
+
+    Returns:
+      The learning rate and discount, the entropy coefficient where it is not 0, and the physics
+      the grid names.
+    """
     words = [f"lr={setting['learning_rate']:g}", f"discount={setting['discount']:g}"]
     words += [f"{name}={value:g}" for name, value in setting.items()
               if name not in ("learning_rate", "discount") and (
@@ -73,6 +89,10 @@ def load_sweep(folder: str | pathlib.Path) -> Sweep:
 
     Returns:
       `Sweep` with `[G, S]` scores and `[G, S, I]` curves.
+
+    Raises:
+      ValueError: naming the folder, for a missing or empty folder, one written by another
+        version of jaxpg or by something else, or held-out returns of the wrong shape.
     """
     path = pathlib.Path(folder)
     if not path.is_dir():
@@ -82,10 +102,11 @@ def load_sweep(folder: str | pathlib.Path) -> Sweep:
     summary = _read_summary(path, folder)
     if summary.get("format") != SWEEP_FORMAT:
         found = "no format marker" if "format" not in summary else f"format {summary['format']!r}"
-        raise ValueError(f"{folder}: written by another version of jaxpg ({found}, this version reads "
-                         f"{SWEEP_FORMAT!r}); run the sweep again")
+        raise ValueError(f"{folder}: written by another version of jaxpg ({found}, this version "
+                         f"reads {SWEEP_FORMAT!r}); run the sweep again")
     if not (path / "metrics.npz").is_file():
-        raise ValueError(f"{folder}: no metrics.npz; expected a folder written by jaxpg sweep --out")
+        raise ValueError(
+            f"{folder}: no metrics.npz; expected a folder written by jaxpg sweep --out")
     with np.load(path / "metrics.npz") as npz:
         if "mean_return" not in npz or not isinstance(summary.get("grid"), list):
             raise ValueError(f"{folder}: metrics.npz lacks mean_return or summary.json its grid; "
@@ -100,21 +121,23 @@ def load_sweep(folder: str | pathlib.Path) -> Sweep:
         score = f"training return: each run's mean return over its last {window} iterations"
     elif held_out.ndim == 3 and held_out.shape[:2] == curves.shape[:2]:
         scores = held_out.mean(axis=-1)
-        score = (f"held-out evaluation return: each run's mean return over its {held_out.shape[-1]} "
-                 f"evaluation episodes")
+        score = (f"held-out evaluation return: each run's mean return over its "
+                 f"{held_out.shape[-1]} evaluation episodes")
     else:
         raise ValueError(f"{folder}: eval_returns of shape {held_out.shape}, expected "
                          f"[G, S, N] with [G, S] = {list(curves.shape[:2])}")
     return Sweep(str(folder), summary["config"], settings, scores, curves, score)
 
 
-def _read_summary(path, folder):
+def _read_summary(path: pathlib.Path, folder: str | pathlib.Path) -> dict[str, Any]:
+    """`path`'s summary.json; a ValueError naming `folder` unless it holds a sweep's config."""
     try:
         summary = json.loads((path / "summary.json").read_text())
     except FileNotFoundError:
-        raise ValueError(f"{folder}: no summary.json; expected a folder written by jaxpg sweep --out")
+        raise ValueError(
+            f"{folder}: no summary.json; expected a folder written by jaxpg sweep --out") from None
     except json.JSONDecodeError as error:
-        raise ValueError(f"{folder}: summary.json is not valid JSON ({error})")
+        raise ValueError(f"{folder}: summary.json is not valid JSON ({error})") from None
     if not isinstance(summary, dict) or not isinstance(summary.get("config"), dict):
         raise ValueError(f"{folder}: summary.json holds no sweep config; run the sweep again")
     return summary
@@ -124,6 +147,9 @@ def check_comparable(sweeps: Sequence[Sweep]) -> None:
     """Raises a ValueError naming what differs unless the sweeps may be compared setting by setting.
 
     Their configs must be equal but for the grid fields, and their scores of one kind.
+
+    Args:
+      sweeps: one or more sweeps, as `load_sweep` reads them.
     """
     first = sweeps[0]
     for other in sweeps[1:]:
@@ -131,18 +157,19 @@ def check_comparable(sweeps: Sequence[Sweep]) -> None:
         differ = [f"{key} ({first.config.get(key)} against {other.config.get(key)})"
                   for key in keys if first.config.get(key) != other.config.get(key)]
         if differ:
-            raise ValueError(f"folders: {first.folder} and {other.folder} differ in {', '.join(differ)}; "
-                             f"only learning rates, discounts and seeds may differ")
+            raise ValueError(f"folders: {first.folder} and {other.folder} differ in "
+                             f"{', '.join(differ)}; only learning rates, discounts and seeds may "
+                             f"differ")
         if other.score != first.score:
-            raise ValueError(f"folders: {first.folder} and {other.folder} score their runs differently "
-                             f"({first.score}; {other.score}); compare like with like")
+            raise ValueError(f"folders: {first.folder} and {other.folder} score their runs "
+                             f"differently ({first.score}; {other.score}); compare like with like")
 
 
 # --- Comparing ----------------------------------------------------------------------------------
 
 
 def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, reps: int = 2000,
-            seed: int = 0) -> dict:
+            seed: int = 0) -> dict[str, Any]:
     """The comparison of every setting of the sweep folders with every other.
 
     Args:
@@ -157,6 +184,11 @@ def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, rep
       "probability_of_improvement" (`[G, G]` "probability", "low", "high": row over column),
       "seeds_needed" (None for one setting), "iqm_curves" (`[G, I']` at I' <= `_CURVE_POINTS`
       iterations), "performance_profiles" (`[G, P]`), and what was compared and how.
+
+    Raises:
+      ValueError: for no folder or a repeated one, a folder that `load_sweep` refuses, folders
+        that may not be compared (`check_comparable`), a setting of fewer than 2 runs, or an
+        interval argument that `stats` refuses.
     """
     if not folders:
         raise ValueError("folders: give at least one sweep folder")
@@ -168,9 +200,10 @@ def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, rep
     scores = [unit.scores for unit in units]
     labels = [unit.label for unit in units]
     solved_return = float(sweeps[0].config["solved_return"])
-    interval = dict(confidence=confidence, reps=reps, seed=seed)
-    statistics = dict(zip(_AGGREGATES, (stats.iqm, stats.mean, stats.median,
-                                         functools.partial(stats.optimality_gap, target=solved_return))))
+    interval = _Interval(confidence=confidence, reps=reps, seed=seed)
+    gap = functools.partial(stats.optimality_gap, target=solved_return)
+    statistics: dict[str, Callable[..., stats.Aggregate]] = dict(
+        zip(_AGGREGATES, (stats.iqm, stats.mean, stats.median, gap)))
     settings = [
         {"label": unit.label, "folder": unit.folder, **unit.setting, "runs": unit.scores.size,
          **{name: _estimate(f(unit.scores), stats.bootstrap_ci(unit.scores, f, **interval))
@@ -193,37 +226,44 @@ def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, rep
     }
 
 
-def _units(sweeps):
+def _units(sweeps: Sequence[Sweep]) -> list[_Unit]:
     """Every setting of every sweep, labelled with its folder where there are several."""
     units = []
     for sweep in sweeps:
         for setting, scores, curves in zip(sweep.settings, sweep.scores, sweep.curves):
-            label = setting_label(setting) if len(sweeps) == 1 else f"{sweep.folder}: {setting_label(setting)}"
+            label = setting_label(setting)
+            if len(sweeps) > 1:
+                label = f"{sweep.folder}: {label}"
             if scores.size < 2:
-                raise ValueError(f"{sweep.folder}: {label} has {scores.size} run; a comparison needs "
-                                 f"at least 2 seeds per setting")
+                raise ValueError(f"{sweep.folder}: {label} has {scores.size} run; a comparison "
+                                 f"needs at least 2 seeds per setting")
             units.append(_Unit(label, sweep.folder, setting, scores, curves))
     return units
 
 
-def _estimate(estimate, interval):
+def _estimate(estimate: stats.Aggregate, interval: tuple[float, float]) -> dict[str, float]:
+    """An aggregate over all scores (a float) and its interval, as `comparison.json` holds them."""
     return {"estimate": float(estimate), "low": interval[0], "high": interval[1]}
 
 
-def _seeds_needed(scores, labels, interval):
+def _seeds_needed(scores: Sequence[np.ndarray], labels: Sequence[str],
+                  interval: _Interval) -> dict[str, Any] | None:
+    """`stats.seeds_needed` with the settings named by their labels; None for one setting."""
     if len(scores) < 2:
         return None
     estimate = stats.seeds_needed(scores, **interval)
     return {**estimate._asdict(), "best": labels[estimate.best], "second": labels[estimate.second]}
 
 
-def _curves(curves, interval):
-    """The IQM curves with bands of every setting's `[S, I]` curves, at up to `_CURVE_POINTS` iterations."""
+def _curves(curves: Sequence[np.ndarray], interval: _Interval) -> dict[str, np.ndarray]:
+    """The IQM curves with bands of every setting's `[S, I]` curves, at up to `_CURVE_POINTS`
+    iterations."""
     columns = np.unique(np.linspace(0, curves[0].shape[1] - 1, _CURVE_POINTS).round().astype(int))
-    return _bands([stats.iqm_curve(c[:, columns], columns + 1, **interval) for c in curves], "iteration")
+    bands = [stats.iqm_curve(c[:, columns], columns + 1, **interval) for c in curves]
+    return _bands(bands, "iteration")
 
 
-def _bands(bands, x_name):
+def _bands(bands: Sequence[stats.Band], x_name: str) -> dict[str, np.ndarray]:
     """`stats.Band`s of every setting as one `{x_name: [P], "estimate": [G, P], ...}`."""
     return {x_name: bands[0].x, **{field: np.stack([getattr(b, field) for b in bands])
                                    for field in ("estimate", "low", "high")}}
@@ -233,7 +273,7 @@ def _bands(bands, x_name):
 
 
 def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confidence: float = 0.95,
-          reps: int = 2000, seed: int = 0) -> dict:
+          reps: int = 2000, seed: int = 0) -> dict[str, Any]:
     """Compares the folders and writes `comparison.json` and the plots of `PLOT_FILES` into `out`.
 
     Args:
@@ -245,6 +285,9 @@ def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confid
 
     Returns:
       The comparison, as `compare` returns it.
+
+    Raises:
+      ValueError: as `compare`, and for an `out` that is not a folder that can be written.
     """
     out = atomic_files.check_out_dir(out)
     comparison = compare(folders, confidence, reps, seed)
@@ -259,16 +302,18 @@ def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confid
         plots.aggregate_intervals(labels, aggregates, stage / PLOT_FILES[0], xlabel="return")
         plots.performance_profiles(profiles["tau"], profiles["estimate"], profiles["low"],
                                    profiles["high"], labels, stage / PLOT_FILES[1], xlabel="return")
-        plots.iqm_curves(curves["iteration"], curves["estimate"], curves["low"], curves["high"], labels,
-                         stage / PLOT_FILES[2], solved_return=comparison["solved_return"])
+        plots.iqm_curves(curves["iteration"], curves["estimate"], curves["low"], curves["high"],
+                         labels, stage / PLOT_FILES[2], solved_return=comparison["solved_return"])
         plots.improvement_heatmap(comparison["probability_of_improvement"]["probability"], labels,
                                   stage / PLOT_FILES[3])
     return comparison
 
 
-def format_report(comparison: dict) -> str:
-    """The comparison as text: the score used, a table of IQM and mean with intervals, the
-    P(improvement) matrix and how many seeds would tell the two best settings apart.
+def format_report(comparison: dict[str, Any]) -> str:
+    """The comparison as text.
+
+    The score used, a table of IQM and mean with intervals, the P(improvement) matrix and how many
+    seeds would tell the two best settings apart.
 
     Args:
       comparison: as `compare` returns it.
@@ -282,30 +327,35 @@ def format_report(comparison: dict) -> str:
     lines = [f"score: {comparison['score']}",
              f"{'':4}{'setting':<{width}}  {'runs':>5}  {'IQM [' + ci + ']':<24}  mean [{ci}]"]
     for g, s in enumerate(settings, 1):
-        lines.append(f"{g:>3} {s['label']:<{width}}  {s['runs']:>5}  {_with_interval(**s['iqm']):<24}  "
-                     f"{_with_interval(**s['mean'])}")
+        lines.append(f"{g:>3} {s['label']:<{width}}  {s['runs']:>5}  "
+                     f"{_with_interval(**s['iqm']):<24}  {_with_interval(**s['mean'])}")
     matrix = comparison["probability_of_improvement"]
     lines.append(f"P(row's setting scores above column's) [{ci}]:")
-    cells = [[_with_interval(matrix["probability"][i][j], matrix["low"][i][j], matrix["high"][i][j], ".2f")
+    cells = [[_with_interval(matrix["probability"][i][j], matrix["low"][i][j],
+                             matrix["high"][i][j], ".2f")
               if i != j else "-" for j in range(len(settings))] for i in range(len(settings))]
     lines.append(f"{'':4}" + "  ".join(f"{j:<18}" for j in range(1, len(settings) + 1)).rstrip())
-    lines += [f"{i:>3} " + "  ".join(f"{cell:<18}" for cell in row).rstrip() for i, row in enumerate(cells, 1)]
+    lines += [f"{i:>3} " + "  ".join(f"{cell:<18}" for cell in row).rstrip()
+              for i, row in enumerate(cells, 1)]
     lines.append(_seeds_guidance(comparison["seeds_needed"], ci))
     return "\n".join(lines)
 
 
-def _with_interval(estimate, low, high, spec=".1f"):
+def _with_interval(estimate: float, low: float, high: float, spec: str = ".1f") -> str:
+    """An estimate and its interval as "estimate [low, high]", each formatted with `spec`."""
     return f"{estimate:{spec}} [{low:{spec}}, {high:{spec}}]"
 
 
-def _seeds_guidance(needed, ci):
+def _seeds_guidance(needed: dict[str, Any] | None, ci: str) -> str:
+    """The line on how many seeds would tell the two best settings apart (`_seeds_needed`)."""
     if needed is None:
         return "seeds: one setting, nothing to compare"
     pair = f"{needed['best']} against {needed['second']}"
     difference = _with_interval(needed["difference"], needed["low"], needed["high"])
     if needed["seeds"] is None:
-        return f"seeds: the two best settings, {pair}, have the same IQM; no number of seeds tells them apart"
+        return (f"seeds: the two best settings, {pair}, have the same IQM; no number of seeds "
+                f"tells them apart")
     verdict = "excludes" if needed["low"] > 0 else "includes"
-    return (f"seeds: the two best settings by IQM, {pair}, differ by {difference} ({ci}), which {verdict} 0; "
-            f"with about {needed['seeds']} seeds per setting it would exclude 0 (if the interval narrows "
-            f"as 1/sqrt(seeds))")
+    return (f"seeds: the two best settings by IQM, {pair}, differ by {difference} ({ci}), which "
+            f"{verdict} 0; with about {needed['seeds']} seeds per setting it would exclude 0 (if "
+            f"the interval narrows as 1/sqrt(seeds))")

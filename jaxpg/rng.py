@@ -1,10 +1,10 @@
 """`jax.random`'s threefry numbers, bit for bit, as plain elementwise arithmetic.
 
 On CPU, JAX lowers its threefry hash as a loop of five rounds over the whole array, which XLA can
-neither vectorise well nor fuse with the arithmetic that consumes the numbers; drawing them costs
-more than simulating CartPole. The same hash unrolled into `jnp` operations fuses into its
-consumers and runs several times faster. Every function here returns exactly what its `jax.random`
-namesake returns for the same key (with `jax_threefry_partitionable`, JAX's default).
+neither vectorise well nor fuse with the arithmetic that consumes the numbers. Here the hash is
+unrolled into elementwise operations, which fuse into their consumers (docs/performance.md).
+Every function here returns exactly what its `jax.random` namesake returns for the same key (with
+`jax_threefry_partitionable`, JAX's default).
 
 Keys are raw `uint32[2]` keys (`jax.random.PRNGKey`) or typed threefry keys (`jax.random.key`).
 `bits` and `uniform` also take R keys `[R, 2]` at once and return `[*shape, R]`: run r's numbers
@@ -13,21 +13,27 @@ on the last axis, exactly those of its key alone.
 
 import functools
 import math
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+from jax.typing import DTypeLike
+
+from jaxpg.types import ArrayLike, PRNGKey
+
+# `repeat=(axis, size)`: a draw's `axis` repeated to `size` entries (`uniform`).
+Repeat = tuple[int, int]
 
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
 
 
-def _threefry2x32(key, hi, lo):
-    """Threefry-2x32 with 20 rounds of the counters (hi, lo) under `key` `[2]`; two uint32 arrays.
-
-    The rounds are written in `lax` operations, which JAX traces faster than their `jnp` forms.
-    """
-    ks = (key[0], key[1], key[0] ^ key[1] ^ np.uint32(0x1BD11BDA))
+def _threefry2x32(key: jax.Array, hi: jax.Array, lo: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Threefry-2x32 with 20 rounds of the uint32 counters (hi, lo) under the key's words `[2]`
+    (`[2, R]` for R keys, against counters `[..., R]`); two uint32 arrays shaped as the counters."""
+    # `lax` operations rather than `jnp`: JAX traces them faster (docs/performance.md).
+    ks: Sequence[jax.Array] = (key[0], key[1], key[0] ^ key[1] ^ np.uint32(0x1BD11BDA))
     x0, x1 = hi + ks[0], lo + ks[1]
     ks = [jnp.broadcast_to(k, x0.shape) for k in ks]
     for i in range(5):
@@ -39,20 +45,20 @@ def _threefry2x32(key, hi, lo):
     return x0, x1
 
 
-def _rotate_left(x, r):
+def _rotate_left(x: jax.Array, r: int) -> jax.Array:
     """The bits of uint32 `x` rotated left by `r`."""
     return lax.bitwise_or(lax.shift_left(x, np.uint32(r)),
                           lax.shift_right_logical(x, np.uint32(32 - r)))
 
 
-def _key_words(key):
+def _key_words(key: PRNGKey) -> jax.Array:
     """The two words of a key `[2]`, or of R keys `[R, 2]` (each word then `[R]`)."""
     if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
         key = jax.random.key_data(key)
     return jnp.moveaxis(key, -1, 0)
 
 
-def _repeats(shape, repeat):
+def _repeats(shape: Sequence[int], repeat: Repeat | None) -> tuple[int, np.ndarray] | None:
     """(axis, indices along it) that repeat a draw of `shape` as `repeat=(axis, size)` asks, or
     None when nothing is repeated; a ValueError for an axis outside `shape` or a size below its
     length."""
@@ -66,7 +72,8 @@ def _repeats(shape, repeat):
     return None if size == shape[axis] else (axis, np.arange(size) % shape[axis])
 
 
-def _counters(shape, runs, repeat=None):
+def _counters(shape: tuple[int, ...], runs: tuple[int, ...], repeat: Repeat | None = None
+              ) -> tuple[jax.Array, jax.Array]:
     """(hi, lo) halves of the uint64 counters of a draw of `shape`, as `jax.random` counts them:
     an iota reshaped to `shape`; with `repeat`, a constant of those counters repeated, so that the
     hash runs once over the repeated draws."""
@@ -76,17 +83,26 @@ def _counters(shape, runs, repeat=None):
     if repeats is None:
         lo = lax.iota(jnp.uint32, math.prod(shape)).reshape(shape)
     else:
-        lo = np.arange(math.prod(shape), dtype=np.uint32).reshape(shape)
-        lo = jnp.asarray(np.take(lo, repeats[1], axis=repeats[0]))
+        counters = np.arange(math.prod(shape), dtype=np.uint32).reshape(shape)
+        lo = jnp.asarray(np.take(counters, repeats[1], axis=repeats[0]))
     lo = lo.reshape(*lo.shape, *(1 for _ in runs))
     return jnp.zeros_like(lo), lo
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "repeat"))
-def bits(key, shape, repeat=None):
+def bits(key: PRNGKey, shape: Sequence[int], repeat: Repeat | None = None) -> jax.Array:
     """Random uint32 of `shape`, equal to `jax.random.bits(key, shape)`; `[*shape, R]` for R keys.
 
-    `repeat` as for `uniform`.
+    Args:
+      key: a key `[2]` (raw or typed), or R keys `[R, 2]`.
+      shape: the shape of the draw, fewer than 2**32 numbers; static.
+      repeat: optional `(axis, size)`, as for `uniform`; static.
+
+    Returns:
+      uint32 `shape`, or `[*shape, R]` for R keys.
+
+    Raises:
+      ValueError: for a draw of 2**32 numbers or more, or a `repeat` that does not fit `shape`.
     """
     words = _key_words(key)
     x0, x1 = _threefry2x32(words, *_counters(tuple(shape), words.shape[1:], repeat))
@@ -94,13 +110,25 @@ def bits(key, shape, repeat=None):
 
 
 @functools.partial(jax.jit, static_argnames=("shape", "dtype", "repeat"))
-def uniform(key, shape, minval=0.0, maxval=1.0, dtype=None, repeat=None):
-    """Uniform floats in [minval, maxval), equal to `jax.random.uniform`; fast in float32.
+def uniform(key: PRNGKey, shape: Sequence[int], minval: ArrayLike = 0.0, maxval: ArrayLike = 1.0,
+            dtype: DTypeLike | None = None, repeat: Repeat | None = None) -> jax.Array:
+    """Uniform floats in [minval, maxval), equal to `jax.random.uniform`.
 
-    With R keys `[R, 2]`, `[*shape, R]`; `minval` and `maxval` broadcast against that. With
-    `repeat=(axis, size)` (a size of at least the axis's length), the draw's `axis` is repeated
-    to `size` entries, entry j being entry j % shape[axis], and drawn so: the copies cost no more
-    than the numbers they copy.
+    In float32 the numbers are computed here, elementwise; other dtypes draw with `jax.random`.
+
+    Args:
+      key: a key `[2]` (raw or typed), or R keys `[R, 2]`.
+      shape: the shape of the draw; static.
+      minval: the lower bound, broadcast against the result.
+      maxval: the upper bound, broadcast against the result.
+      dtype: a float dtype; the default float dtype by default. Static.
+      repeat: optional `(axis, size)` (a size of at least the axis's length): the draw's `axis`
+        is repeated to `size` entries, entry j being entry j % shape[axis], and drawn so that the
+        copies cost no more than the numbers they copy. Static.
+
+    Returns:
+      Floats of `dtype`, `shape` (its `axis` of length `size` with `repeat`), or `[*shape, R]`
+      for R keys.
     """
     dtype = jax.dtypes.canonicalize_dtype(dtype or float)
     if dtype != jnp.float32:
@@ -119,8 +147,16 @@ def uniform(key, shape, minval=0.0, maxval=1.0, dtype=None, repeat=None):
 
 
 @functools.partial(jax.jit, static_argnames="num")
-def split(key, num=2):
-    """`num` new keys `[num, 2]`, equal to `jax.random.split(key, num)`; `[num, R, 2]` for R keys."""
+def split(key: PRNGKey, num: int = 2) -> jax.Array:
+    """`num` new raw keys `[num, 2]`, equal to `jax.random.split(key, num)`'s key data.
+
+    Args:
+      key: a key `[2]` (raw or typed), or R keys `[R, 2]`.
+      num: the number of keys; static.
+
+    Returns:
+      uint32 `[num, 2]`, or `[num, R, 2]` for R keys.
+    """
     words = _key_words(key)
     x0, x1 = _threefry2x32(words, *_counters((num,), words.shape[1:]))
     # Kept whole: otherwise XLA recomputes the hash inside every draw that uses one of the keys.

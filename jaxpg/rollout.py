@@ -11,30 +11,41 @@ the lanes left over, and drops the copies from what it returns (its policy sees 
 
 import functools
 import math
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import cartpole, rng
+from jaxpg.cartpole import CartPoleParams, CartPoleState
+from jaxpg.types import Action, ArrayLike, Observation, Policy, PRNGKey
+
+# The policy of a stream, which draws its own random numbers: (obs `[N, 4]`, key) -> action `[N]`.
+StreamPolicy = Callable[[Observation, PRNGKey], Action]
+
+_Tree = TypeVar("_Tree")
 
 
 class Transition(NamedTuple):
-    """What happened at each step; `[T, E]` leading axes. Steps after an episode ended are masked."""
+    """What happened at each step; `[T, E]` leading axes. Steps after an episode ended are masked.
+
+    With R runs, every field has a run axis after the episodes' (`[T, E, R, ...]`).
+    """
 
     obs: jax.Array  # [T, E, 4] observation the action was chosen from
-    action: jax.Array  # [T, E]
+    action: jax.Array  # [T, E] int32
     reward: jax.Array  # [T, E], 0 where not alive
     alive: jax.Array  # [T, E] bool: the step belongs to the episode
 
 
 class Episodes(NamedTuple):
-    """A batch of finished (or cut at T steps) episodes."""
+    """A batch of finished (or cut at T steps) episodes; `[E, R]` in place of `[E]` for R runs."""
 
-    transitions: Transition
-    returns: jax.Array  # [E] sum of rewards over the alive steps
-    lengths: jax.Array  # [E] number of alive steps
+    transitions: Transition  # [T, E, ...]
+    returns: jax.Array  # [E] sum of rewards over the alive steps, in the rewards' float dtype
+    lengths: jax.Array  # [E] int32 number of alive steps
     # [] bool ([R] for R runs): whether the policy gave an action other than 0 or 1 on an alive
     # step, which CartPole played as 0 (push left); a caller of a user's policy raises it.
     invalid_action: jax.Array | None = None
@@ -44,14 +55,19 @@ CHUNK = 20  # steps simulated between checks whether every episode has ended
 LANES = 16  # floats in a vector of AVX-512, two of AVX2
 
 
-def reset_batch(key, num, env_params, repeat_to=None):
+def reset_batch(key: PRNGKey, num: int, env_params: CartPoleParams, repeat_to: int | None = None
+                ) -> tuple[Observation, CartPoleState]:
     """`num` initial states drawn with one call to the random number generator.
 
-    With `repeat_to`, that many states (in place of `num` in the shapes below): the `num` drawn
-    ones, then the first ones again, drawn so that the copies cost nothing more.
+    Args:
+      key: PRNG key, or R keys `[R, 2]`.
+      num: the number of states drawn.
+      env_params: `CartPoleParams`, whose reset bounds the values are uniform in.
+      repeat_to: optional: that many states (in place of `num` in the shapes below), the `num`
+        drawn ones, then the first ones again, drawn so that the copies cost nothing more.
 
     Returns:
-      (obs `[num, 4]`, state with `[num]` leaves); with R keys `[R, 2]`, `[num, R, 4]` and `[num, R]`
+      (obs `[num, 4]`, state with `[num]` leaves); with R keys, `[num, R, 4]` and `[num, R]`.
     """
     repeat = None if repeat_to is None else (0, repeat_to)
     values = rng.uniform(key, (num, 4), env_params.reset_low, env_params.reset_high, repeat=repeat)
@@ -59,19 +75,20 @@ def reset_batch(key, num, env_params, repeat_to=None):
     return cartpole.observe(state), state
 
 
-def _select(done, old, new):
+def _select(done: jax.Array, old: _Tree, new: _Tree) -> _Tree:
     """Per environment, `old` where done, else `new` (a frozen episode stays where it ended)."""
     return jax.tree.map(lambda o, n: jnp.where(done, o, n), old, new)
 
 
-def _record(features, action, reward, alive):
+def _record(features: jax.Array, action: jax.Array, reward: jax.Array, alive: jax.Array
+            ) -> jax.Array:
     """One step's transition as one array `[7, E, ...]`: features, action, reward, alive."""
     dtype = features.dtype
     return jnp.concatenate(
         [features, jnp.stack([action.astype(dtype), reward.astype(dtype), alive.astype(dtype)])])
 
 
-def _transitions(records):
+def _transitions(records: jax.Array) -> Transition:
     """`Transition` from records `[T, 7, E, ...]`."""
     # Observations are stored features first, each step's four values contiguous for the policy
     # and for the gradient that reads them back (`[T, 4, E]`, which XLA keeps as it is when
@@ -82,7 +99,8 @@ def _transitions(records):
                       alive=records[:, 6] != 0)
 
 
-def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, lanes=1):
+def rollout(key: PRNGKey, policy: Policy, env_params: CartPoleParams, num_episodes: int,
+            max_steps: int, init_state: CartPoleState | None = None, lanes: int = 1) -> Episodes:
     """Plays `num_episodes` episodes of at most `max_steps` steps with `policy`.
 
     Time runs in chunks of `CHUNK` steps; once every episode has ended, the remaining chunks are
@@ -95,12 +113,17 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
       env_params: `CartPoleParams`; an episode also ends when `env_params.max_steps` truncates it.
       num_episodes: E.
       max_steps: T, the length of the trajectory.
-      init_state: optional `CartPoleState` with `[E]` (or `[E, R]`) leaves, instead of random resets.
+      init_state: optional `CartPoleState` with `[E]` (or `[E, R]`) leaves, in place of random
+        resets.
       lanes: the episodes are played in a multiple of this many lanes, the first ones again in the
         lanes left over; the policy sees every lane, the result only the E episodes.
 
     Returns:
       `Episodes` with transitions of shape `[T, E, ...]` (`[T, E, R, ...]` for R runs).
+
+    Raises:
+      ValueError: as it is traced, if the policy does not return one integer action per
+        observation (`check_actions`).
     """
     key_reset, key_policy = rng.split(key)
     played = -(-num_episodes // lanes) * lanes
@@ -114,12 +137,14 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
     steps = np.arange(num_chunks * chunk, dtype=np.int32).reshape(num_chunks, chunk)  # a constant
 
     # The carry is one array, the features and whether the episode ended `[5, E, R]`, and so is a
-    # step's record: a step is then few enough kernels for XLA to run them one after another
-    # rather than schedule them as a graph, several times faster for small batches.
-    def one_step(carry, step):
+    # step's record: few kernels per step, which XLA runs in sequence (docs/performance.md).
+    def one_step(carry: jax.Array, step: tuple[jax.Array, jax.Array]
+                 ) -> tuple[jax.Array, jax.Array]:
+        """One step of every episode: (carry `[5, E, ...]`, record `[7, E, ...]`)."""
         u, t = step
         features, done = carry[:4], carry[4] != 0
-        state = cartpole.CartPoleState(*features, time=init_state.time + t)
+        # (`features` is `[4, ...]`: four positional values before `time`.)
+        state = cartpole.CartPoleState(*features, time=init_state.time + t)  # type: ignore[misc]
         obs = jnp.moveaxis(features, 0, -1)
         action = policy(obs, u)
         check_actions(action, obs)
@@ -130,36 +155,44 @@ def rollout(key, policy, env_params, num_episodes, max_steps, init_state=None, l
         done = done | terminated | truncated
         return jnp.concatenate([next_features, done[None].astype(features.dtype)]), record
 
-    def play_chunk(carry, steps):
+    def play_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
+                   ) -> tuple[jax.Array, jax.Array]:
+        """`CHUNK` steps simulated: (carry, records `[CHUNK, 7, E, ...]`)."""
         return jax.lax.scan(one_step, carry, steps)
 
-    def skip_chunk(carry, steps):
+    def skip_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
+                   ) -> tuple[jax.Array, jax.Array]:
+        """`CHUNK` masked records of episodes that have all ended, without simulating them."""
         features = carry[:4]
         frozen = _record(features, jnp.zeros(features.shape[1:], jnp.int32),
                          jnp.zeros(features.shape[1:], features.dtype),
                          jnp.zeros(features.shape[1:], bool))
         return carry, jnp.broadcast_to(frozen, (chunk, *frozen.shape))
 
-    def one_chunk(carry, steps):
+    def one_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
+                  ) -> tuple[jax.Array, jax.Array]:
+        """`play_chunk`, or `skip_chunk` once every episode has ended."""
         return jax.lax.cond(jnp.all(carry[4] != 0), skip_chunk, play_chunk, carry, steps)
 
     features = init_state.to_array(axis=0)
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
-    _, records = jax.lax.scan(one_chunk, carry, (noise, steps))
+    # (scan's stubs type each slice of `xs` as `xs` itself: numpy steps, sliced as JAX arrays.)
+    _, records = jax.lax.scan(one_chunk, carry, (noise, steps))  # type: ignore[arg-type]
     records = records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps, :, :num_episodes]
-    # Rewards and alive steps summed in one reduction, exactly: they are whole numbers. Summed as
-    # integers, since XLA hands a float sum of several runs' records to a library (YNNPACK), whose
-    # call keeps XLA from compiling the training iteration around it into one function
-    # (`jaxpg.xla_options`).
+    # Rewards and alive steps summed in one reduction, exactly: they are whole numbers.
+    # As integers: XLA hands a float sum to a library call, which splits the fused iteration.
     returns, alive_steps = records[:, 5:7].astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
     action, alive = records[:, 4], records[:, 6] != 0
     invalid = jnp.any(alive & (action != 0) & (action != 1), axis=(0, 1))
     return Episodes(_transitions(records), returns.astype(records.dtype), alive_steps, invalid)
 
 
-def check_actions(action, obs):
-    """Raises a ValueError, as the rollout is traced, unless `action` holds one integer (or bool)
-    action per observation of `obs` `[..., 4]`: 0 pushes left, 1 right."""
+def check_actions(action: Action, obs: Observation) -> None:
+    """Checks a policy's actions for `obs` `[..., 4]` as the rollout is traced.
+
+    Raises:
+      ValueError: unless `action` holds one integer (or bool) action per observation, `[...]`.
+    """
     dtype = jnp.result_type(action)
     if jnp.shape(action) != obs.shape[:-1] or not (
             jnp.issubdtype(dtype, jnp.integer) or dtype == jnp.bool_):
@@ -168,9 +201,15 @@ def check_actions(action, obs):
                          f"{jnp.shape(action)}")
 
 
-def check_played_actions(invalid_action):
-    """Raises a ValueError where a rollout's policy gave an action other than 0 or 1 (any of
-    `Episodes.invalid_action`), which CartPole played as 0."""
+def check_played_actions(invalid_action: ArrayLike | None) -> None:
+    """Checks on the host that a rollout's policy gave actions 0 or 1 only.
+
+    Args:
+      invalid_action: `Episodes.invalid_action`, `[]` or `[R]` bool; None passes.
+
+    Raises:
+      ValueError: if any is True: the policy gave another action, which CartPole played as 0.
+    """
     if np.any(invalid_action):
         raise ValueError("policy: returned an action other than 0 (push left) or 1 (push right), "
                          "which CartPole played as 0")
@@ -179,28 +218,46 @@ def check_played_actions(invalid_action):
 class StreamState(NamedTuple):
     """Carry of an auto-reset stream of N environments."""
 
-    env_state: cartpole.CartPoleState  # [N] leaves
+    env_state: CartPoleState  # [N] leaves
     prev_done: jax.Array  # [N] bool: the last step ended the episode, so the next one resets
 
 
 class StreamStats(NamedTuple):
     """What a stream did: episodes finished and their summed return."""
 
-    episodes: jax.Array
-    total_return: jax.Array
+    episodes: jax.Array  # [] int32 episodes that ended (terminated or truncated), all environments
+    total_return: jax.Array  # [] float sum of every reward of the stream
 
 
-def stream_reset(key, num_envs, env_params):
-    """A fresh stream of `num_envs` environments. Returns (obs `[N, 4]`, `StreamState`)."""
+def stream_reset(key: PRNGKey, num_envs: int, env_params: CartPoleParams
+                 ) -> tuple[Observation, StreamState]:
+    """A fresh stream of N = `num_envs` environments.
+
+    Args:
+      key: PRNG key of the initial states.
+      num_envs: N.
+      env_params: `CartPoleParams`.
+
+    Returns:
+      (obs `[N, 4]`, `StreamState`), no environment due to reset.
+    """
     obs, state = reset_batch(key, num_envs, env_params)
     return obs, StreamState(state, jnp.zeros(num_envs, dtype=bool))
 
 
-def autoreset_step(key, stream_state, action, env_params):
+def autoreset_step(key: PRNGKey, stream_state: StreamState, action: Action,
+                   env_params: CartPoleParams
+                   ) -> tuple[Observation, StreamState, jax.Array, jax.Array, jax.Array]:
     """One step of N environments with Gymnasium's next-step autoreset (as `CartPoleVectorEnv`).
 
     An environment whose previous step terminated or truncated ignores `action` and resets: reward
     0, terminated and truncated False.
+
+    Args:
+      key: PRNG key of the states of the environments that reset.
+      stream_state: the `StreamState` of N environments.
+      action: int `[N]`, each 0 or 1.
+      env_params: `CartPoleParams`.
 
     Returns:
       (obs `[N, 4]`, `StreamState`, reward `[N]`, terminated `[N]`, truncated `[N]`)
@@ -209,7 +266,9 @@ def autoreset_step(key, stream_state, action, env_params):
     return _autoreset(fresh, stream_state, action, env_params)
 
 
-def _autoreset(fresh, stream_state, action, env_params):
+def _autoreset(fresh: CartPoleState, stream_state: StreamState, action: Action,
+               env_params: CartPoleParams
+               ) -> tuple[Observation, StreamState, jax.Array, jax.Array, jax.Array]:
     """`autoreset_step` with the states `fresh` `[N]` for the environments that reset."""
     prev_done = stream_state.prev_done
     _, stepped, reward, terminated, truncated = jax.vmap(cartpole.step, in_axes=(0, 0, None))(
@@ -228,8 +287,16 @@ def _autoreset(fresh, stream_state, action, env_params):
     )
 
 
-def random_policy(obs, key):
-    """Pushes left or right with equal probability: 32 actions from each random 32-bit word."""
+def random_policy(obs: Observation, key: PRNGKey) -> Action:
+    """Pushes left or right with equal probability: 32 actions from each random 32-bit word.
+
+    Args:
+      obs: `[..., 4]` observations, of which only the shape is read.
+      key: PRNG key.
+
+    Returns:
+      int32 actions `[...]`.
+    """
     num = math.prod(obs.shape[:-1])
     words = rng.bits(key, (-(-num // 32), 1))
     actions = (words >> jnp.arange(32, dtype=jnp.uint32)) & 1
@@ -238,8 +305,15 @@ def random_policy(obs, key):
 
 STREAM_CHUNK = 8  # steps per draw of reset states: shorter than CartPole's shortest episode
 
+# A stream's carry within a chunk: obs, state, fresh reset states, which environments used theirs,
+# episodes and total return per environment.
+_StepCarry = tuple[Observation, StreamState, CartPoleState, jax.Array, jax.Array, jax.Array]
+# Between chunks: obs, state, episodes, total return.
+_ChunkCarry = tuple[Observation, StreamState, jax.Array, jax.Array]
 
-def stream(key, policy, env_params, num_envs, num_steps):
+
+def stream(key: PRNGKey, policy: StreamPolicy, env_params: CartPoleParams, num_envs: int,
+           num_steps: int) -> tuple[StreamState, StreamStats]:
     """Runs `num_envs` auto-resetting environments for `num_steps` steps.
 
     The policy of a stream draws its own random numbers: `(obs [N, 4], key) -> action [N]`, such
@@ -249,13 +323,21 @@ def stream(key, policy, env_params, num_envs, num_steps):
     an episode of the default CartPole lasts at least 8 steps, so an environment resets at most once
     in a chunk. One that resets twice (with other `env_params`) draws again for that step.
 
+    Args:
+      key: PRNG key.
+      policy: `(obs [N, 4], key) -> action [N]`.
+      env_params: `CartPoleParams`.
+      num_envs: N.
+      num_steps: steps of every environment.
+
     Returns:
       (`StreamState` at the end, `StreamStats` over the run)
     """
     key_reset, key_steps = jax.random.split(key)
     obs, state = stream_reset(key_reset, num_envs, env_params)
 
-    def one_step(carry, step_key):
+    def one_step(carry: _StepCarry, step_key: PRNGKey) -> tuple[_StepCarry, None]:
+        """One step of every environment, `fresh` holding the states of those that reset."""
         obs, state, fresh, used, episodes, total = carry
         again = state.prev_done & used
         fresh = jax.lax.cond(
@@ -271,7 +353,8 @@ def stream(key, policy, env_params, num_envs, num_steps):
         episodes = episodes + (terminated | truncated)
         return (obs, state, fresh, used, episodes, total + reward), None
 
-    def one_chunk(carry, chunk_key, length):
+    def one_chunk(carry: _ChunkCarry, chunk_key: PRNGKey, length: int) -> tuple[_ChunkCarry, None]:
+        """`length` steps, with reset states drawn once for them."""
         key_fresh, key_steps = rng.split(chunk_key)
         _, fresh = reset_batch(key_fresh, num_envs, env_params)
         used = jnp.zeros(num_envs, dtype=bool)

@@ -16,6 +16,8 @@ are rewritten too.
 """
 
 import functools
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +26,13 @@ from jax import lax
 from jax.extend import core
 
 from jaxpg import sums
+from jaxpg.types import Array, ArrayLike
+
+# A value of the jaxpr being evaluated, and whether it carries the trailing run axis.
+_Value = tuple[Any, bool]
+# A rule for an operation whose parameters name one run's shape or axes: (inputs, the equation's
+# parameters, runs) -> the output with its run axis, or None where the rule does not apply.
+_Rule = Callable[[list[_Value], dict[str, Any], int], Array | None]
 
 _ELEMENTWISE = frozenset("""
     abs acos acosh add add_any and asin asinh atan atan2 atanh cbrt ceil clamp convert_element_type
@@ -42,7 +51,7 @@ _ALONG_AXES = frozenset("""
 _CALLS = ("pjit", "jit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call")
 
 
-def runwise(fn, batched):
+def runwise(fn: Callable[..., Any], batched: Any) -> Callable[..., Any]:
     """`fn`, taking and returning pytrees of arrays, evaluated for several runs at once.
 
     Args:
@@ -56,7 +65,8 @@ def runwise(fn, batched):
       `[..., R]` where any argument has one.
     """
 
-    def wrapped(*args):
+    def wrapped(*args: Any) -> Any:
+        """`fn` of `args`, for every run at once."""
         flags = _broadcast_prefix(batched, args)
         leaves, tree = jax.tree.flatten(args)
         run_sizes = {leaf.shape[-1] for leaf, b in zip(leaves, flags) if b}
@@ -74,21 +84,21 @@ def runwise(fn, batched):
     return wrapped
 
 
-def _broadcast_prefix(prefix, tree):
+def _broadcast_prefix(prefix: Any, tree: Any) -> list[bool]:
     """A bool per leaf of `tree`, from `prefix`, a pytree prefix of it."""
     return jax.tree.leaves(jax.tree.map(
         lambda flag, sub: jax.tree.map(lambda _: bool(flag), sub), prefix, tree))
 
 
-def _lift(x, batched, runs):
+def _lift(x: ArrayLike, batched: bool, runs: int | None) -> Array:
     """`x` with its trailing run axis: shared values are broadcast to every run."""
     if batched:
-        return x
+        return x  # type: ignore[return-value]  # (a batched value is an array)
     x = jnp.asarray(x)
     return lax.broadcast_in_dim(x, (*x.shape, runs), tuple(range(x.ndim)))
 
 
-def _to_shape(x, batched, shape, runs):
+def _to_shape(x: ArrayLike, batched: bool, shape: tuple[int, ...], runs: int) -> Array:
     """An operand of an elementwise operation whose one-run result is `shape`, as `[*shape, R]`."""
     x = jnp.asarray(x)
     if batched and x.ndim == len(shape) + 1:
@@ -98,11 +108,13 @@ def _to_shape(x, batched, shape, runs):
     return lax.broadcast_in_dim(x, (*shape, runs), tuple(range(len(shape) - x.ndim, len(shape))))
 
 
-def _evaluate(jaxpr, consts, args, runs):
+def _evaluate(jaxpr: core.Jaxpr, consts: Sequence[Any], args: Sequence[_Value],
+              runs: int | None) -> list[_Value]:
     """The outputs of `jaxpr` as (value, batched) pairs, from `args`, (value, batched) pairs."""
-    env = {}
+    env: dict[core.Var, _Value] = {}
 
-    def read(var):
+    def read(var: core.Var | core.Literal) -> _Value:
+        """A variable's (value, batched); a literal's value, shared by every run."""
         if isinstance(var, core.Literal):
             return var.val, False
         return env[var]
@@ -119,7 +131,7 @@ def _evaluate(jaxpr, consts, args, runs):
     return [read(var) for var in jaxpr.outvars]
 
 
-def _apply(eqn, ins, runs):
+def _apply(eqn: core.JaxprEqn, ins: list[_Value], runs: int | None) -> list[_Value]:
     """One equation's outputs as (value, batched) pairs."""
     name, params = eqn.primitive.name, eqn.params
     values = [value for value, _ in ins]
@@ -134,12 +146,13 @@ def _apply(eqn, ins, runs):
         return [(_dot(ins, params, runs), any_batched)]
     if not any_batched:
         return _bound(eqn, values)
+    assert runs is not None  # an argument has a run axis, of `runs` entries
     rule = _RULES.get(name)
     out = None if rule is None else rule(ins, params, runs)
     if out is not None:
         return [(out, True)]
     if name in _ELEMENTWISE:
-        shape = eqn.outvars[0].aval.shape
+        shape = eqn.outvars[0].aval.shape  # type: ignore[attr-defined]  # (a ShapedArray's)
         return _bound(eqn, [_to_shape(v, b, shape, runs) for v, b in ins], batched=True)
     if name in _ALONG_AXES:
         return _bound(eqn, values, batched=True)
@@ -148,18 +161,23 @@ def _apply(eqn, ins, runs):
     return [(out, True) for out in vmapped(*values)]
 
 
-def _bind(eqn, *values):
+def _bind(eqn: core.JaxprEqn, *values: Any) -> list[Any]:
+    """The equation's operation applied to `values`: a list of its outputs."""
     outs = eqn.primitive.bind(*values, **eqn.params)
     return outs if eqn.primitive.multiple_results else [outs]
 
 
-def _bound(eqn, values, batched=False):
+def _bound(eqn: core.JaxprEqn, values: Sequence[Any], batched: bool = False) -> list[_Value]:
+    """`_bind`'s outputs as (value, batched) pairs."""
     return [(out, batched) for out in _bind(eqn, *values)]
 
 
-def _sum(x, axes):
-    """`x` summed over `axes` (of one run's axes) in a fixed order: over the first of them one
-    entry after another where it is long, then over the others by halving."""
+def _sum(x: Array, axes: Sequence[int]) -> Array:
+    """`x` summed over `axes` (of one run's axes) in a fixed order.
+
+    Over the first of them one entry after another where it is long, then over the others by
+    halving.
+    """
     axes = tuple(axes)
     if not axes:
         return x
@@ -168,7 +186,8 @@ def _sum(x, axes):
         x = jnp.moveaxis(x, axes[0], 0)
         rest = tuple(a + (a < axes[0]) - 1 for a in axes[1:])
 
-        def add(i, total):
+        def add(i: Array, total: Array) -> Array:
+            """`total` plus entry `i` of the summed axis."""
             return total + lax.dynamic_index_in_dim(x, i, keepdims=False)
 
         return _sum(lax.fori_loop(1, x.shape[0], add, x[0]), rest)
@@ -178,7 +197,7 @@ def _sum(x, axes):
 LOOPED_CONTRACTION = 64  # a contracting axis longer than this is summed in a loop, in order
 
 
-def _dot(ins, params, runs):
+def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     """`lax.dot_general` as products summed in a fixed order over the contracting axes.
 
     Each operand is laid out as [contracting, batch, free] (plus the run axis), expanded against
@@ -203,7 +222,8 @@ def _dot(ins, params, runs):
     if not contract:
         result = x * y
     elif x.shape[0] > LOOPED_CONTRACTION:
-        def add(i, total):
+        def add(i: Array, total: Array) -> Array:
+            """`total` plus the products of entry `i` of the first contracting axis."""
             return total + (lax.dynamic_index_in_dim(x, i, keepdims=False)
                             * lax.dynamic_index_in_dim(y, i, keepdims=False))
 
@@ -217,9 +237,12 @@ def _dot(ins, params, runs):
     return result if dtype is None else result.astype(dtype)
 
 
-def _arranged(x, batched, order, expand_at, count):
-    """One run's axes of `x` put in `order`, with `count` axes of size one inserted at
-    `expand_at`; a trailing run axis stays last."""
+def _arranged(x: ArrayLike, batched: bool, order: Sequence[int], expand_at: int,
+              count: int) -> Array:
+    """One run's axes of `x` put in `order`, with `count` axes of size one inserted at `expand_at`.
+
+    A trailing run axis stays last.
+    """
     x = jnp.asarray(x)
     x = lax.transpose(x, (*order, *([x.ndim - 1] if batched else [])))
     shape = (*x.shape[:expand_at], *(1,) * count, *x.shape[expand_at:])
@@ -231,40 +254,46 @@ def _arranged(x, batched, order, expand_at, count):
 # returns None where it does not apply, and `jax.vmap` evaluates the operation. ----------------
 
 
-def _broadcast_in_dim(ins, params, runs):
+def _broadcast_in_dim(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.broadcast_in_dim` to the shape with the run axis appended."""
     (x, _), *dynamic = ins
     shape = (*params["shape"], runs)
     dims = (*params["broadcast_dimensions"], len(params["shape"]))
     return lax.broadcast_in_dim(x, shape, dims)
 
 
-def _reshape(ins, params, runs):
+def _reshape(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.reshape` to the new sizes with the run axis appended."""
     return lax.reshape(ins[0][0], (*params["new_sizes"], runs))
 
 
-def _transpose(ins, params, runs):
+def _transpose(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.transpose` with the run axis kept last."""
     perm = params["permutation"]
     return lax.transpose(ins[0][0], (*perm, len(perm)))
 
 
-def _slice(ins, params, runs):
+def _slice(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.slice` with the whole run axis kept."""
     strides = params["strides"]
     return lax.slice(ins[0][0], (*params["start_indices"], 0), (*params["limit_indices"], runs),
                      None if strides is None else (*strides, 1))
 
 
-def _pad(ins, params, runs):
+def _pad(ins: list[_Value], params: dict[str, Any], runs: int) -> Array | None:
+    """`lax.pad` with the run axis unpadded; None for a padding value per run."""
     (x, _), (value, value_batched) = ins
     if value_batched:  # a padding value per run: left to `jax.vmap`
         return None
     return lax.pad(x, value, (*params["padding_config"], (0, 0, 0)))
 
 
-def _concatenate(ins, params, runs):
+def _concatenate(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.concatenate` of the operands, each with its run axis (shared ones broadcast)."""
     return lax.concatenate([_lift(v, b, runs) for v, b in ins], params["dimension"])
 
 
-_RULES = {
+_RULES: dict[str, _Rule] = {
     "broadcast_in_dim": _broadcast_in_dim,
     "reshape": _reshape,
     "transpose": _transpose,

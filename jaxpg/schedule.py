@@ -3,43 +3,56 @@
 import concurrent.futures
 import os
 import threading
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import numpy as np
 
-from jaxpg.iteration import TrainResult
-from jaxpg.programs import ITERATIONS_PER_CALL
+from jaxpg import executables
+from jaxpg.iteration import Evaluation, Metrics, TrainResult, TrainState
+from jaxpg.programs import ITERATIONS_PER_CALL, Program
+from jaxpg.train_config import Hyperparams
+from jaxpg.types import Array, HostArray, Params
+
+# The runs of one device: (keys uint32 `[R, 2]`, `Hyperparams` `[R]`), numpy or on the device.
+Part = tuple[Array | HostArray, Hyperparams]
 
 
-def calls(iterations):
+def calls(iterations: int) -> list[tuple[int, int]]:
     """`(first iteration, count)` of each program call that trains for `iterations` iterations."""
     return [(start, min(ITERATIONS_PER_CALL, iterations - start))
             for start in range(0, iterations, ITERATIONS_PER_CALL)]
 
 
 CPU_BLOCK = 16  # runs a CPU trains together at most: one vector of them (`rollout.LANES`)
-# Runs per core that train alone rather than in a block: a run alone vectorises over its episodes,
-# and 2 runs alone per core trained in 0.10 to 0.12 s, a block of 4 in 0.13 to 0.15 s.
+# Runs per core that train alone rather than in a block: a run alone vectorises over its episodes
+# (docs/performance.md).
 ALONE_PER_CORE = 2
 
 
-def usable_cores():
+def usable_cores() -> int:
     """The cores this process may run on (all of them where the OS does not say)."""
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1
 
 
-def cpu_blocks(num_runs):
-    """The blocks in which a CPU trains `num_runs` runs, one thread per core: `(start, stop)` of
-    each, and the size every block is padded to, with copies of its own runs.
+def cpu_blocks(num_runs: int) -> tuple[list[tuple[int, int]], int]:
+    """The blocks in which a CPU trains `num_runs` runs, one thread per core.
 
     Up to `ALONE_PER_CORE` runs per core train alone, a block each. More train in blocks of at
     most `CPU_BLOCK` runs whose sizes differ by at most one, as many as a multiple of the usable
     cores, so that every core trains and all finish together, padded to a whole vector of floats:
     4, 8 or 16 runs. XLA vectorises over the runs in whole vectors and loops over the rest one by
-    one: a block of 15 runs trained three times as long as one of 16, of 3 runs twice as long as
-    one of 8. One size, one program to compile.
+    one, so a block padded to a whole vector trains sooner. One size, one program to compile.
+
+    Args:
+      num_runs: how many runs train.
+
+    Returns:
+      (`(start, stop)` of each block's runs, the size every block is padded to with copies of its
+      own runs).
     """
     cores = usable_cores()
     if num_runs <= ALONE_PER_CORE * cores:
@@ -51,7 +64,11 @@ def cpu_blocks(num_runs):
     return list(zip(bounds[:-1], bounds[1:])), size
 
 
-def train_blocks(program, iterations, parts, on_iteration=None, policy_params=None, eval_episodes=0):
+def train_blocks(
+    program: Program, iterations: int, parts: Sequence[Part],
+    on_iteration: Callable[[int, Metrics], None] | None = None,
+    policy_params: Params | None = None, eval_episodes: int = 0,
+) -> list[TrainResult]:
     """Trains each part's runs for `iterations` iterations, every part on its own device.
 
     On a CPU a part trains in `cpu_blocks`, spread over one thread per core: XLA runs such small
@@ -61,7 +78,7 @@ def train_blocks(program, iterations, parts, on_iteration=None, policy_params=No
     by side (`prepare`).
 
     Args:
-      program: from `compiled_program`.
+      program: from `programs.compiled_program`.
       iterations: how many times to iterate.
       parts: a list of (keys `[R_p, 2]`, `Hyperparams` `[R_p]`), each on the device that trains it.
       on_iteration: optional `(iteration, Metrics) -> None`, the metrics' leaves `[sum of R_p]`,
@@ -83,16 +100,18 @@ def train_blocks(program, iterations, parts, on_iteration=None, policy_params=No
     blocks = [(*block, *start_from) for block in blocks]
     prepare(program, blocks)
     schedule = calls(iterations)
-    history = [[None] * len(blocks) for _ in schedule]
-    finals = [None] * len(blocks)
-    evaluations = [None] * len(blocks)
+    # Each call's stacked metrics of each block; each block's final TrainState and Evaluation.
+    history: list[list[Any]] = [[None] * len(blocks) for _ in schedule]
+    finals: list[Any] = [None] * len(blocks)
+    evaluations: list[Evaluation | None] = [None] * len(blocks)
     num_workers = min(len(blocks), usable_cores())
     finished = [0] * len(schedule)  # workers that dispatched each call
-    failed = []  # workers that raised
+    failed: list[Sequence[int]] = []  # workers that raised
     progress_made = threading.Condition()
     stop = threading.Event()  # the caller was interrupted: workers end before their next call
 
-    def train_blocks(indices):
+    def train_blocks(indices: Sequence[int]) -> None:
+        """Trains the blocks `indices` in turn, call by call, on this thread."""
         try:
             states = {i: program.init(*blocks[i]) for i in indices}
             for call, (_, count) in enumerate(schedule):
@@ -128,7 +147,8 @@ def train_blocks(program, iterations, parts, on_iteration=None, policy_params=No
                 shown = np.concatenate([np.asarray(m)[:count, :, :runs]
                                         for m, runs in zip(history[call], owned)], axis=-1)
                 for offset, rows in enumerate(shown):
-                    on_iteration(start + offset, program.metrics(rows))
+                    on_iteration(  # type: ignore[misc]  # (the loop runs only with a hook)
+                        start + offset, program.metrics(rows))
             for worker in workers:
                 worker.result()
         except BaseException:  # Ctrl-C above all (KeyboardInterrupt), or the hook's error
@@ -156,9 +176,11 @@ def train_blocks(program, iterations, parts, on_iteration=None, policy_params=No
     return results
 
 
-def _wait_through_interrupts(futures):
-    """Waits for `futures` to end, however often Ctrl-C is pressed meanwhile: the workers end
-    before their caller does, rather than under the interpreter's shutdown."""
+def _wait_through_interrupts(futures: Sequence[concurrent.futures.Future[Any]]) -> None:
+    """Waits for `futures` to end, however often Ctrl-C is pressed meanwhile.
+
+    So the workers end before their caller does, rather than under the interpreter's shutdown.
+    """
     while True:
         try:
             concurrent.futures.wait(futures)
@@ -167,47 +189,69 @@ def _wait_through_interrupts(futures):
             continue
 
 
-def prepare(program, blocks):
-    """Starts compiling (or loading) `program` for `blocks`, a list of `program.init`'s arguments
-    (keys `[R, 2]`, `Hyperparams` `[R]`, and the policy parameters to start from, if any), and
-    returns the `concurrent.futures.Future`s of their programs.
+def prepare(program: Program, blocks: Sequence[tuple[Any, ...]]
+            ) -> list[concurrent.futures.Future[executables.Program]]:
+    """Starts compiling (or loading) `program` for `blocks`.
 
     This thread traces and lowers `iterate` for each block first, then `init`; other threads
     compile each program as soon as it is lowered. `iterate`'s compile, the longest, so runs while
     `init` is traced and compiled.
+
+    Args:
+      program: from `programs.compiled_program`.
+      blocks: `program.init`'s arguments for each block: keys `[R, 2]`, `Hyperparams` `[R]`, and
+        the policy parameters to start from, if any.
+
+    Returns:
+      The `concurrent.futures.Future`s of their programs: every block's `iterate`, then `init`.
     """
     iterates = [program.iterate.prepare(_state_like(program, *block), block[1], np.int32(1))
                 for block in blocks]
     return iterates + [program.init.prepare(*block) for block in blocks]
 
 
-def _state_like(program, keys, *init_args):
-    """The `TrainState` that `program.init(keys, *init_args)` returns, as shapes placed as its
-    arrays will be: committed to the keys' device where the keys are. Read from `init`'s program
-    where it is at hand (kept on disk), traced otherwise."""
+def _state_like(program: Program, keys: Array | HostArray, *init_args: Any) -> TrainState:
+    """The `TrainState` that `program.init(keys, *init_args)` returns, as placed shapes.
+
+    Its leaves are `jax.ShapeDtypeStruct`s placed as the arrays will be: committed to the keys'
+    device where the keys are. Read from `init`'s program where it is at hand (kept on disk),
+    traced otherwise.
+    """
     init = program.init.loaded(keys, *init_args)
-    shapes = program.init.eval_shape(keys, *init_args) if init is None else init.out_info
+    # A loaded program is a compiled one, which has `out_info` (`executables.Program` types a call).
+    shapes = (program.init.eval_shape(keys, *init_args) if init is None
+              else init.out_info)  # type: ignore[attr-defined]
     sharding = keys.sharding if isinstance(keys, jax.Array) and keys.committed else None
     return jax.tree.map(
         lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=sharding), shapes)
 
 
-def device_blocks(num_runs, device):
-    """The blocks in which `device` trains `num_runs` runs, as `cpu_blocks` gives them: in
-    `cpu_blocks` on a CPU, the runs whole in one block elsewhere."""
+def device_blocks(num_runs: int, device: jax.Device) -> tuple[list[tuple[int, int]], int]:
+    """The blocks in which `device` trains `num_runs` runs, as `cpu_blocks` gives them.
+
+    On a CPU they are `cpu_blocks`; elsewhere the runs train whole, in one block.
+    """
     if device.platform != "cpu":
         return [(0, num_runs)], num_runs
     return cpu_blocks(num_runs)
 
 
-def part_blocks(part):
-    """A part's runs as `run` trains them (`device_blocks`): `(inputs, runs)` of each block, whose
-    first `runs` runs are the part's and the rest copies of them, where the block needs them."""
+def part_blocks(part: Part) -> list[tuple[Part, int]]:
+    """A part's runs in the blocks that `train_blocks` trains (`device_blocks`).
+
+    Args:
+      part: (keys `[R, 2]`, `Hyperparams` `[R]`) of the runs of one device.
+
+    Returns:
+      `(inputs, runs)` of each block: its keys and `Hyperparams`, whose first `runs` runs are the
+      part's and the rest copies of them, where the block needs them.
+    """
     keys = part[0]
     device = next(iter(keys.devices())) if isinstance(keys, jax.Array) else jax.devices()[0]
     bounds, size = device_blocks(keys.shape[0], device)
 
-    def block(start, stop):
+    def block(start: int, stop: int) -> Part:
+        """The runs `start` to `stop` of `part`, padded to `size` with copies of them."""
         full = stop - start == size
         runs = slice(start, stop) if full else np.resize(np.arange(start, stop), size)
         return jax.tree.map(lambda leaf: leaf[runs], part)

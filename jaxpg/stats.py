@@ -15,9 +15,10 @@ quantiles of the statistic over the resamples (linear interpolation, as `np.perc
 
 import math
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
+import numpy.typing as npt
 import scipy.stats
 
 from jaxpg.validation import check_int
@@ -26,13 +27,17 @@ from jaxpg.validation import check_int
 _CHUNK_SCORES = 2**22
 PROFILE_POINTS = 101  # performance_profile's default thresholds
 
-Statistic = str | Callable[..., np.ndarray]
+# An aggregate of scores: a float over all of them (`axis=None`), an array over one axis.
+Aggregate = np.ndarray | float
+# What `bootstrap_ci` reduces each resample with: a name of `STATISTICS`, or a function
+# `f(scores, axis)` as `np.mean`.
+Statistic = str | Callable[..., Aggregate]
 
 
 # --- Aggregates ----------------------------------------------------------------------------------
 
 
-def iqm(scores: np.ndarray, axis: int | None = None) -> np.ndarray:
+def iqm(scores: np.ndarray, axis: int | None = None) -> Aggregate:
     """The interquartile mean: the mean of the scores left once the lowest and highest 25 % are cut.
 
     As `scipy.stats.trim_mean(scores, 0.25, axis)`: `floor(0.25 * n)` scores are cut at each end,
@@ -48,7 +53,7 @@ def iqm(scores: np.ndarray, axis: int | None = None) -> np.ndarray:
     return scipy.stats.trim_mean(_check_scores(scores), 0.25, axis=axis)
 
 
-def mean(scores: np.ndarray, axis: int | None = None) -> np.ndarray:
+def mean(scores: np.ndarray, axis: int | None = None) -> Aggregate:
     """The mean score.
 
     Args:
@@ -61,20 +66,12 @@ def mean(scores: np.ndarray, axis: int | None = None) -> np.ndarray:
     return np.mean(_check_scores(scores), axis=axis)
 
 
-def median(scores: np.ndarray, axis: int | None = None) -> np.ndarray:
-    """The median score.
-
-    Args:
-      scores: `[R]` or `[R, T]` scores.
-      axis: None for the aggregate over all scores; an axis to reduce only that one.
-
-    Returns:
-      A float for `axis=None`, otherwise the array without `axis`.
-    """
+def median(scores: np.ndarray, axis: int | None = None) -> Aggregate:
+    """The median score; its arguments and result are those of `mean`."""
     return np.median(_check_scores(scores), axis=axis)
 
 
-def optimality_gap(scores: np.ndarray, target: float, axis: int | None = None) -> np.ndarray:
+def optimality_gap(scores: np.ndarray, target: float, axis: int | None = None) -> Aggregate:
     """The mean shortfall from `target`: `target - mean(min(scores, target))`.
 
     Scores above the target count as the target, so going beyond it earns nothing; 0 means every
@@ -87,16 +84,19 @@ def optimality_gap(scores: np.ndarray, target: float, axis: int | None = None) -
 
     Returns:
       A float for `axis=None`, otherwise the array without `axis`.
+
+    Raises:
+      ValueError: for a `target` that is not finite, or scores that are empty or not finite.
     """
     if not math.isfinite(target):
         raise ValueError(f"target: must be a finite number, got {target!r}")
     return target - np.mean(np.minimum(_check_scores(scores), target), axis=axis)
 
 
-STATISTICS = {"iqm": iqm, "mean": mean, "median": median}
+STATISTICS: dict[str, Callable[..., Aggregate]] = {"iqm": iqm, "mean": mean, "median": median}
 
 
-# --- Confidence intervals --------------------------------------------------------------------------
+# --- Confidence intervals ------------------------------------------------------------------------
 
 
 def bootstrap_ci(
@@ -120,6 +120,10 @@ def bootstrap_ci(
 
     Returns:
       (low, high) floats.
+
+    Raises:
+      ValueError: for scores that are empty or not finite, fewer than 2 runs, a `confidence`
+        outside (0, 1), a `reps` below 1, a negative `seed` or an unknown `statistic`.
     """
     reduce = _statistic(statistic)
     scores = _check_interval_args(scores, confidence, reps)
@@ -209,11 +213,12 @@ def improvement_matrix(
         for j in range(i + 1, size):
             probability[i, j] = probability_of_improvement(scores[i], scores[j])
             low[i, j], high[i, j] = improvement_ci(scores[i], scores[j], confidence, reps, seed)
-            probability[j, i], low[j, i], high[j, i] = 1 - probability[i, j], 1 - high[i, j], 1 - low[i, j]
+            probability[j, i], low[j, i], high[j, i] = (
+                1 - probability[i, j], 1 - high[i, j], 1 - low[i, j])
     return ImprovementMatrix(probability, low, high)
 
 
-# --- Profiles and curves ----------------------------------------------------------------------
+# --- Profiles and curves -------------------------------------------------------------------------
 
 
 class Band(NamedTuple):
@@ -252,7 +257,8 @@ def performance_profile(
     if taus.ndim != 1 or taus.size == 0:
         raise ValueError(f"taus: expected a non-empty [P] array, got shape {taus.shape}")
 
-    def above(flat):
+    def above(flat: np.ndarray) -> np.ndarray:
+        """The fraction of each row of `[..., N]` scores above each tau: `[..., P]`."""
         # One threshold at a time keeps memory at one [B, R * T] comparison.
         return np.stack([(flat > tau).mean(axis=-1) for tau in taus], axis=-1)
 
@@ -272,7 +278,8 @@ def iqm_curve(
     A run's whole curve is resampled as one (runs are the independent units, iterations are not).
 
     Args:
-      scores: `[R, I]` a score per run and iteration, e.g. the mean return of each iteration, R >= 2.
+      scores: `[R, I]` a score per run and iteration, e.g. the mean return of each iteration,
+        R >= 2.
       iterations: `[I]` the iteration numbers of the columns, for `Band.x`; by default 1 to I.
       confidence: the bands' coverage, in (0, 1).
       reps: how many resamples.
@@ -289,16 +296,15 @@ def iqm_curve(
         raise ValueError(f"iterations: expected shape {scores.shape[1:]} (a number per column of "
                          f"scores), got {iterations.shape}")
     replicates = _replicates(scores, _iqm_over_runs, reps, _rng(seed), whole_rows=True)
-    return Band(iterations, iqm(scores, axis=0), *_interval(replicates, confidence))
+    per_iteration = cast(np.ndarray, iqm(scores, axis=0))  # an axis given: an array
+    return Band(iterations, per_iteration, *_interval(replicates, confidence))
 
 
-def _iqm_over_runs(sample):
-    """The IQM over axis 1 of `[B, R, I]` resamples: `[B, I]`, as `trim_mean(sample, 0.25, 1)`.
-
-    A full sort, because np.partition with two kth took 2.5 times as long (numpy 2.4).
-    """
+def _iqm_over_runs(sample: np.ndarray) -> np.ndarray:
+    """The IQM over axis 1 of `[B, R, I]` resamples: `[B, I]`, as `trim_mean(sample, 0.25, 1)`."""
     runs = sample.shape[1]
     cut = runs // 4
+    # A full sort: faster here than np.partition with two kth (docs/performance.md).
     return np.sort(sample, axis=1)[:, cut : runs - cut].mean(axis=1)
 
 
@@ -311,8 +317,8 @@ class SeedsEstimate(NamedTuple):
     best: int  # index of the setting with the highest IQM
     second: int  # index of the runner-up
     difference: float  # IQM(best) - IQM(second), >= 0
-    low: float  # the difference's confidence interval with the runs at hand
-    high: float
+    low: float  # lower bound of the difference's confidence interval with the runs at hand
+    high: float  # its upper bound
     seeds: int | None  # seeds per setting for the interval to exclude 0; None: the IQMs are equal
 
 
@@ -349,7 +355,8 @@ def seeds_needed(
     difference = float(estimates[best] - estimates[second])
     rng = _rng(seed)
     # How far each resample's IQM falls from the setting's IQM: [reps] per setting.
-    deviations = [_replicates(scores[g], _aggregate(iqm), reps, rng) - estimates[g] for g in (best, second)]
+    deviations = [_replicates(scores[g], _aggregate(iqm), reps, rng) - estimates[g]
+                  for g in (best, second)]
     low, high = _interval(difference + deviations[0] - deviations[1], confidence)
     per_run = sum(sign * math.sqrt(scores[g].shape[0]) * deviation
                   for sign, g, deviation in zip((1, -1), (best, second), deviations))
@@ -369,8 +376,11 @@ def _chunk_counts(reps: int, scores_per_resample: int) -> list[int]:
     return [min(per_chunk, reps - start) for start in range(0, reps, per_chunk)]
 
 
-def _resample(scores: np.ndarray, rng: np.random.Generator, count: int, whole_rows: bool = False):
-    """`count` resamples of the runs (rows) of `[R]` or `[R, T]` scores: `[count, R]` or `[count, R, T]`.
+def _resample(
+    scores: np.ndarray, rng: np.random.Generator, count: int, whole_rows: bool = False
+) -> np.ndarray:
+    """`count` resamples of the runs (rows) of `[R]` or `[R, T]` scores: `[count, R]` or
+    `[count, R, T]`.
 
     By default each column (task) draws its own runs; with `whole_rows`, a drawn run brings its
     whole row (its curve over iterations).
@@ -382,7 +392,13 @@ def _resample(scores: np.ndarray, rng: np.random.Generator, count: int, whole_ro
     return scores[rng.integers(0, runs, (count, runs, tasks)), np.arange(tasks)]
 
 
-def _replicates(scores, reduce, reps, rng, whole_rows=False):
+def _replicates(
+    scores: np.ndarray,
+    reduce: Callable[[np.ndarray], np.ndarray],
+    reps: int,
+    rng: np.random.Generator,
+    whole_rows: bool = False,
+) -> np.ndarray:
     """`reduce` of `reps` resamples of `scores`, concatenated over chunks: `[reps, ...]`."""
     return np.concatenate([
         reduce(_resample(scores, rng, count, whole_rows))
@@ -390,17 +406,17 @@ def _replicates(scores, reduce, reps, rng, whole_rows=False):
     ])
 
 
-def _aggregate(reduce):
+def _aggregate(reduce: Callable[..., Any]) -> Callable[[np.ndarray], np.ndarray]:
     """`reduce(scores, axis)` over all scores of each resample, `[B, R]` or `[B, R, T]` -> `[B]`."""
     return lambda sample: reduce(_flat(sample), axis=-1)
 
 
-def _flat(sample):
+def _flat(sample: np.ndarray) -> np.ndarray:
     """`[B, R]` or `[B, R, T]` resamples as `[B, R * T]`: an aggregate takes all scores together."""
     return sample.reshape(sample.shape[0], -1)
 
 
-def _codes(x, y):
+def _codes(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
     """Each task's scores of x and y as the ranks of their values among the task's distinct values.
 
     Returns:
@@ -416,7 +432,7 @@ def _codes(x, y):
     return x_codes, y_codes, distinct
 
 
-def _improvement(x_codes, y_codes, distinct):
+def _improvement(x_codes: np.ndarray, y_codes: np.ndarray, distinct: Sequence[int]) -> np.ndarray:
     """P(X > Y) of `[B, n, T]` against `[B, m, T]` codes (`_codes`), averaged over tasks: `[B]`.
 
     Counting, not comparing pairs: with h_x and h_y how many of a resample's x and y hold each
@@ -431,15 +447,16 @@ def _improvement(x_codes, y_codes, distinct):
     return u / (len(distinct) * n * m)
 
 
-def _histograms(codes, size):
+def _histograms(codes: np.ndarray, size: int) -> np.ndarray:
     """How often each code 0..size-1 occurs in each row of `[B, n]` codes: `[B, size]`."""
     rows = codes.shape[0]
     offsets = size * np.arange(rows)[:, None]
     return np.bincount((codes + offsets).ravel(), minlength=rows * size).reshape(rows, size)
 
 
-def _interval(replicates, confidence):
-    """The percentile interval over the first axis of `replicates`: (low, high)."""
+def _interval(replicates: np.ndarray, confidence: float) -> tuple[Any, Any]:
+    """The percentile interval over the first axis of `replicates`: (low, high), floats for
+    `[reps]` replicates, `[...]` arrays for `[reps, ...]`."""
     tail = 100 * (1 - confidence) / 2
     low, high = np.percentile(replicates, [tail, 100 - tail], axis=0)
     return (float(low), float(high)) if np.ndim(low) == 0 else (low, high)
@@ -448,7 +465,7 @@ def _interval(replicates, confidence):
 # --- Checks -------------------------------------------------------------------------------------
 
 
-def _check_scores(scores, name="scores"):
+def _check_scores(scores: npt.ArrayLike, name: str = "scores") -> np.ndarray:
     """`scores` as a float64 `[R]` or `[R, T]` array; a ValueError unless non-empty and finite."""
     scores = np.asarray(scores, dtype=np.float64)
     if scores.ndim not in (1, 2):
@@ -460,37 +477,43 @@ def _check_scores(scores, name="scores"):
     return scores
 
 
-def _check_interval_args(scores, confidence, reps, name="scores"):
+def _check_interval_args(
+    scores: npt.ArrayLike, confidence: float, reps: int, name: str = "scores"
+) -> np.ndarray:
     """The checked scores; a ValueError for fewer than 2 runs, or a bad confidence or reps."""
     scores = _check_scores(scores, name)
     if scores.shape[0] < 2:
-        raise ValueError(f"{name}: a confidence interval needs at least 2 runs, got {scores.shape[0]}")
+        raise ValueError(
+            f"{name}: a confidence interval needs at least 2 runs, got {scores.shape[0]}")
     if not 0 < confidence < 1:
         raise ValueError(f"confidence: must lie in (0, 1), got {confidence!r}")
     check_int("reps", reps)
     return scores
 
 
-def _rng(seed):
+def _rng(seed: int) -> np.random.Generator:
     """The generator of a bootstrap; a ValueError unless `seed` is a non-negative integer."""
     return np.random.default_rng(check_int("seed", seed, 0))
 
 
-def _check_pair(x, y):
+def _check_pair(x: npt.ArrayLike, y: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """x and y checked (`_check_scores`); a ValueError unless they have the same tasks."""
     x, y = _check_scores(x, "x"), _check_scores(y, "y")
     if x.shape[1:] != y.shape[1:]:
         raise ValueError(f"y: expected the tasks of x, {x.shape[1:]}, got shape {y.shape}")
     return x, y
 
 
-def _check_settings(scores):
-    scores = [_check_scores(s, f"scores[{g}]") for g, s in enumerate(scores)]
-    if not scores:
+def _check_settings(scores: Sequence[npt.ArrayLike]) -> list[np.ndarray]:
+    """Every setting's scores checked (`_check_scores`); a ValueError for no setting."""
+    checked = [_check_scores(s, f"scores[{g}]") for g, s in enumerate(scores)]
+    if not checked:
         raise ValueError("scores: expected at least one setting, got none")
-    return scores
+    return checked
 
 
-def _statistic(statistic):
+def _statistic(statistic: Statistic) -> Callable[..., Aggregate]:
+    """The function that `statistic` names, or `statistic` itself where it is one."""
     if callable(statistic):
         return statistic
     if statistic in STATISTICS:

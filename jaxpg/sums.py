@@ -12,13 +12,23 @@ import math
 import jax
 import jax.numpy as jnp
 
+from jaxpg.types import ArrayLike
 
-def invariant_sum(x, axes):
+
+def invariant_sum(x: ArrayLike, axes: int | tuple[int, ...]) -> jax.Array:
     """Sums `x` over `axes` by halving; the result has the remaining axes in order.
 
-    The halves are contiguous, so XLA fuses the producer of `x` into the first halving. It is
-    written in `lax` operations, which JAX traces several times faster than their `jnp` forms.
+    The halves are contiguous, so XLA fuses the producer of `x` into the first halving. The axes
+    summed are padded with zeros to a power of two, then halved until one entry is left.
+
+    Args:
+      x: an array of any shape.
+      axes: an axis, or a tuple of axes, negative ones counted from the end.
+
+    Returns:
+      The sums, of `x`'s dtype, shaped as `x` without `axes`.
     """
+    # `lax` operations rather than `jnp`: JAX traces them faster (docs/performance.md).
     x = jnp.asarray(x)
     axes = tuple(a % x.ndim for a in (axes if isinstance(axes, tuple) else (axes,)))
     kept = [a for a in range(x.ndim) if a not in axes]
@@ -33,7 +43,16 @@ def invariant_sum(x, axes):
     return jax.lax.reshape(x, x.shape[1:])
 
 
-def invariant_mean(x, axes, where):
-    """The mean of `x` over `axes` counting only the entries where `where` is True (0 if none)."""
+def invariant_mean(x: jax.Array, axes: int | tuple[int, ...], where: jax.Array) -> jax.Array:
+    """The mean of `x` over `axes` counting only the entries where `where` is True (0 if none).
+
+    Args:
+      x: a float array.
+      axes: as for `invariant_sum`.
+      where: bool, shaped as `x`.
+
+    Returns:
+      The means, shaped as `x` without `axes`, summed in `invariant_sum`'s order.
+    """
     count = invariant_sum(where.astype(x.dtype), axes)
     return invariant_sum(jnp.where(where, x, 0.0), axes) / jnp.maximum(count, 1)

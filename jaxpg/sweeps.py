@@ -2,17 +2,19 @@
 
 Every run of a sweep trains in the same compiled program as `train` runs alone, beside the other
 runs on the last axis of every array; seed i of a sweep therefore trains exactly as
-`train(config, seed=i)`. The runs are spread over every device
-of every process, and trained in chunks when a memory budget asks for it.
+`train(config, seed=i)`. The runs are spread over every device of every process, and trained in
+chunks when a memory budget asks for it.
 """
 
 import dataclasses
 import itertools
-from typing import NamedTuple
+from collections.abc import Callable, Collection, Sequence
+from typing import Any, NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 from jax.experimental import multihost_utils
 
 from jaxpg import (
@@ -30,6 +32,16 @@ from jaxpg.validation import check_int, check_number
 
 GRID_FIELDS = (*train_config.HYPERPARAMETERS, *train_config.PHYSICS)
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
+
+# A grid of settings (`expand_grid`): None, a dict of field to one value or a sequence of values,
+# or a list (or tuple) of settings, each a dict of field to value.
+Grid = dict[str, Any] | list[dict[str, Any]] | tuple[dict[str, Any], ...] | None
+# What a sweep's seeds may be: a range, a list or an array of distinct integers in [0, 2**32).
+Seeds = Sequence[int] | np.ndarray
+# `(iteration, metrics) -> None`, called on the host as iterations complete.
+OnIteration = Callable[[int, iteration.Metrics], None]
+# The inputs of a chunk of R runs, on the host: (keys `[R, 2]` uint32, `Hyperparams` `[R]`).
+RunInputs = tuple[np.ndarray, train_config.Hyperparams]
 
 
 class Summary(NamedTuple):
@@ -63,23 +75,29 @@ class Summary(NamedTuple):
 class SweepResult(NamedTuple):
     """Every run of a sweep, `[G, S, ...]`: grid settings by seeds."""
 
-    seeds: np.ndarray  # [S]
-    grid: list  # G dicts {"learning_rate": ..., "discount": ..., "entropy_coef": ..., physics}
+    seeds: np.ndarray  # [S] uint32
+    # G dicts {"learning_rate": ..., "discount": ..., "entropy_coef": ..., physics}
+    grid: list[dict[str, float]]
     policy_params: dict  # leaves [G, S, ...]
     metrics: iteration.Metrics  # leaves [G, S, I]
-    summary: Summary
+    summary: Summary  # statistics across seeds (`summarize`)
     eval_returns: np.ndarray | None = None  # [G, S, N] held-out returns, actions sampled
     eval_greedy_returns: np.ndarray | None = None  # [G, S, N] the same episodes, greedy actions
 
 
-def expand_grid(config, grid):
-    """The grid's settings as a list of dicts, each with the hyperparameters and the physical
-    fields that the grid names; fields it leaves out keep `config`'s values.
+def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, float]]:
+    """The grid's settings, each with the hyperparameters and the physical fields the grid names.
+
+    Fields that the grid leaves out keep `config`'s values. A dict's settings are its product, the
+    last field varying fastest.
 
     Args:
       config: the `TrainConfig` of every run.
       grid: None (`config`'s one setting); a dict of field to values, whose product the settings
         are; or a list of dicts, the settings themselves. Fields: `GRID_FIELDS`.
+
+    Returns:
+      G dicts {field: value}: every hyperparameter, and the physical fields that the grid names.
 
     Raises:
       ValueError: naming the field, for an unknown field, an empty or repeated list of values,
@@ -88,7 +106,7 @@ def expand_grid(config, grid):
     if grid is None or isinstance(grid, dict):
         axes = _axes(dict(grid or {}))
         names = [*train_config.HYPERPARAMETERS, *(n for n in axes if n in train_config.PHYSICS)]
-        values = [axes.get(name, [getattr(config, name, None)]) for name in names]
+        values: list[list[Any]] = [axes.get(name, [getattr(config, name, None)]) for name in names]
         settings = [dict(zip(names, combo)) for combo in itertools.product(*values)]
     elif isinstance(grid, list | tuple) and grid and all(isinstance(s, dict) for s in grid):
         named = set().union(*grid)
@@ -109,14 +127,15 @@ def expand_grid(config, grid):
     return settings
 
 
-def _check_fields(names):
+def _check_fields(names: Collection[str]) -> None:
+    """Raises a ValueError naming the fields of `names` that are not `GRID_FIELDS`."""
     unknown = set(names) - set(GRID_FIELDS)
     if unknown:
         raise ValueError(f"grid: unknown field(s) {', '.join(sorted(unknown))}; allowed: "
                          f"{', '.join(GRID_FIELDS)}")
 
 
-def _axes(grid):
+def _axes(grid: dict[str, Any]) -> dict[str, list[float]]:
     """A dict grid's axes as lists of Python numbers; a ValueError for an empty or repeated one."""
     _check_fields(grid)
     axes = {}
@@ -131,8 +150,21 @@ def _axes(grid):
     return axes
 
 
-def setting_hyperparams(config, setting):
-    """The `Hyperparams` (scalars) of one setting of `expand_grid`, validated."""
+def setting_hyperparams(
+    config: train_config.TrainConfig, setting: dict[str, float]
+) -> train_config.Hyperparams:
+    """The `Hyperparams` (scalars) of one setting of `expand_grid`, validated.
+
+    Args:
+      config: the `TrainConfig` of every run, whose physics the setting's physical fields modify.
+      setting: one setting of `expand_grid`.
+
+    Returns:
+      `Hyperparams` of Python scalars, `env` the setting's `CartPoleParams`.
+
+    Raises:
+      ValueError: naming the field, for a value out of range.
+    """
     hyper = {name: setting[name] for name in train_config.HYPERPARAMETERS}
     train_config.check_hyperparams(**hyper)
     env = config.env_params.replace(
@@ -141,12 +173,24 @@ def setting_hyperparams(config, setting):
     return train_config.Hyperparams(**hyper, env=env)
 
 
+# The message of a ValueError for seeds that are not a sequence of integers in range.
 SEEDS_ALLOWED = "seeds: must be a non-empty sequence of distinct integers in [0, 2**32)"
 
 
-def count_seeds(seeds):
-    """How many seeds `seeds` holds, found without making an array of them (a range is checked
-    by its bounds here); a ValueError where it is no sequence."""
+def count_seeds(seeds: Seeds) -> int:
+    """How many seeds `seeds` holds, found without making an array of them.
+
+    A range is checked by its bounds here; other sequences are checked by `check_seeds`.
+
+    Args:
+      seeds: a sequence of S seeds.
+
+    Returns:
+      S.
+
+    Raises:
+      ValueError: where `seeds` is no sequence, is empty, or is a range out of [0, 2**32).
+    """
     if isinstance(seeds, range) and seeds and not (
             0 <= min(seeds[0], seeds[-1]) and max(seeds[0], seeds[-1]) < 2**32):
         raise ValueError(f"{SEEDS_ALLOWED}, got {seeds!r}")
@@ -159,8 +203,15 @@ def count_seeds(seeds):
     return count
 
 
-def check_seeds(seeds):
-    """The seeds as a `[S]` uint32 array; a ValueError unless they are distinct integers in range."""
+def check_seeds(seeds: Seeds) -> np.ndarray:
+    """The seeds as a `[S]` uint32 array; a ValueError unless they are distinct integers in range.
+
+    Args:
+      seeds: a non-empty sequence (a range, list or array) of distinct integers in [0, 2**32).
+
+    Returns:
+      `[S]` uint32 seeds, in the given order.
+    """
     count_seeds(seeds)
     seeds = np.asarray(seeds if isinstance(seeds, np.ndarray) else list(seeds))
     if seeds.ndim != 1 or not np.issubdtype(seeds.dtype, np.integer):
@@ -172,12 +223,28 @@ def check_seeds(seeds):
     return seeds.astype(np.uint32)
 
 
-def check_arguments(config, seeds, grid=None, memory_budget=None):
-    """Checks the arguments of `sweep`, and the memory that its runs need (`budget.check`),
-    before anything is traced or allocated.
+def check_arguments(
+    config: train_config.TrainConfig,
+    seeds: Seeds,
+    grid: Grid = None,
+    memory_budget: int | None = None,
+) -> tuple[np.ndarray, list[dict[str, float]]]:
+    """Checks the arguments of `sweep`, and the memory that its runs need (`budget.check`).
+
+    Everything is checked before anything is traced or allocated.
+
+    Args:
+      config: the `TrainConfig` every run shares.
+      seeds: S seeds (`check_seeds`).
+      grid: the grid of settings (`expand_grid`).
+      memory_budget: optional bytes of memory one device may use (`budget.check_memory_budget`).
 
     Returns:
-      (the seeds as `check_seeds` gives them, the settings of `expand_grid`)
+      (the `[S]` seeds as `check_seeds` gives them, the G settings of `expand_grid`).
+
+    Raises:
+      ValueError: one line naming the argument, for any of them out of range, or runs that need
+        more memory than the machine has.
     """
     num_seeds = count_seeds(seeds)
     settings = expand_grid(config, grid)
@@ -187,8 +254,18 @@ def check_arguments(config, seeds, grid=None, memory_budget=None):
     return check_seeds(seeds), settings
 
 
-def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_progress=True,
-          memory_budget=None, on_iteration=None, eval_episodes=0):
+_DEFAULT_CONFIG = train_config.TrainConfig()  # frozen: one instance serves every call
+
+
+def sweep(
+    config: train_config.TrainConfig = _DEFAULT_CONFIG,
+    seeds: Seeds = range(64),
+    grid: Grid = None,
+    show_progress: bool = True,
+    memory_budget: int | None = None,
+    on_iteration: OnIteration | None = None,
+    eval_episodes: int = 0,
+) -> SweepResult:
     """Trains every seed under every grid setting, on every device, in chunks that fit a budget.
 
     Args:
@@ -210,6 +287,10 @@ def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_pr
     Returns:
       `SweepResult` with `[G, S, ...]` leaves and the `Summary` (and with `eval_episodes`, the
       held-out returns `[G, S, N]`), on every process.
+
+    Raises:
+      ValueError: one line naming the argument, for any of them out of range (`check_arguments`),
+        before anything is compiled; for a `memory_budget` below one run's need, after compiling.
     """
     seeds, settings = check_arguments(config, seeds, grid, memory_budget)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
@@ -235,22 +316,32 @@ def sweep(config=train_config.TrainConfig(), seeds=range(64), grid=None, show_pr
             part = train_on_devices(program, config.iterations, _take(inputs, indices),
                                     progress.together(shown, on_iteration), eval_episodes)
         if result is None:
-            result = jax.tree.map(lambda leaf: np.empty((num_runs, *leaf.shape[1:]), leaf.dtype), part)
+            result = jax.tree.map(
+                lambda leaf: np.empty((num_runs, *leaf.shape[1:]), leaf.dtype), part)
         for out, leaf in zip(jax.tree.leaves(result), jax.tree.leaves(part)):
             out[start:stop] = leaf[: stop - start]
     num_settings, num_seeds = len(settings), seeds.size
-    result = jax.tree.map(lambda leaf: leaf.reshape(num_settings, num_seeds, *leaf.shape[1:]), result)
+    result = jax.tree.map(
+        lambda leaf: leaf.reshape(num_settings, num_seeds, *leaf.shape[1:]), result)
     summary = summarize(result.metrics.mean_return, config.solved_return)
     reinforce.warn_if_diverged(
         jax.tree.map(lambda leaf: leaf.reshape(num_runs, -1), result.metrics),
         [f"seed {seed} with {setting}" for setting in settings for seed in seeds])
-    evaluation = result.evaluation or iteration.Evaluation(None, None)
+    evaluation = result.evaluation
     return SweepResult(seeds, settings, result.policy_params, result.metrics, summary,
-                       evaluation.sampled, evaluation.greedy)
+                       None if evaluation is None else evaluation.sampled,
+                       None if evaluation is None else evaluation.greedy)
 
 
-def run_inputs(config, seeds, settings):
+def run_inputs(
+    config: train_config.TrainConfig, seeds: np.ndarray, settings: Sequence[dict[str, float]]
+) -> RunInputs:
     """The key and hyperparameters of every run, on the host, setting-major.
+
+    Args:
+      config: the `TrainConfig` every run shares.
+      seeds: `[S]` seeds, as `check_seeds` gives them.
+      settings: G settings of `expand_grid`.
 
     Returns:
       (keys `[R, 2]` uint32, `Hyperparams` with `[R]` leaves) as numpy arrays, where
@@ -265,12 +356,18 @@ def run_inputs(config, seeds, settings):
     return keys, train_config.stack(hypers)
 
 
-def _take(tree, index):
+def _take(tree: Any, index: Any) -> Any:
     """`tree` with every leaf indexed by `index`: the runs it selects."""
     return jax.tree.map(lambda leaf: leaf[index], tree)
 
 
-def train_on_devices(program, iterations, inputs, on_iteration=None, eval_episodes=0):
+def train_on_devices(
+    program: programs.Program,
+    iterations: int,
+    inputs: RunInputs,
+    on_iteration: OnIteration | None = None,
+    eval_episodes: int = 0,
+) -> iteration.TrainResult:
     """Trains runs `[C]`, a multiple of the device count, on every device of every process.
 
     Process p trains the p-th of `jax.process_count()` equal blocks of the runs, each of its
@@ -283,22 +380,26 @@ def train_on_devices(program, iterations, inputs, on_iteration=None, eval_episod
       iterations: how many iterations to train.
       inputs: (keys `[C, 2]`, `Hyperparams` `[C]`) as numpy arrays, the same on every process.
       on_iteration: optional `(iteration, metrics) -> None` for this process's runs.
+      eval_episodes: N: held-out episodes each run's final policy plays after training (0: none).
 
     Returns:
-      `TrainResult` with numpy leaves `[C, ...]`, on every process.
+      `TrainResult` with numpy leaves `[C, ...]` (and with `eval_episodes`, its `Evaluation`
+      `[C, N]`), on every process.
     """
     devices = jax.local_devices()
     per_process = inputs[0].shape[0] // jax.process_count()
     per_device = per_process // len(devices)
     first = jax.process_index() * per_process
-    shares = [slice(first + i * per_device, first + (i + 1) * per_device) for i in range(len(devices))]
+    shares = [slice(first + i * per_device, first + (i + 1) * per_device)
+              for i in range(len(devices))]
     parts = [jax.device_put(_take(inputs, share), device) for share, device in zip(shares, devices)]
-    local = schedule.train_blocks(program, iterations, parts, on_iteration, eval_episodes=eval_episodes)
+    local = schedule.train_blocks(program, iterations, parts, on_iteration,
+                                  eval_episodes=eval_episodes)
     local = jax.tree.map(lambda *leaves: np.concatenate(leaves), *local)
     return multihost_utils.process_allgather(local, tiled=True)
 
 
-def device_bytes(program, iterations, num_runs):
+def device_bytes(program: programs.Program, iterations: int, num_runs: int) -> int:
     """Device memory that training `num_runs` runs for `iterations` iterations on one device needs.
 
     XLA's buffer assignment for one call of `program` (its arguments, among them the training
@@ -307,6 +408,14 @@ def device_bytes(program, iterations, num_runs):
     A CPU trains the runs in blocks (`schedule.device_blocks`): every block's state and metrics
     count, and the temporaries of as many blocks as train at once. It compiles the program that
     training runs, for this process's first device, so that training reuses it.
+
+    Args:
+      program: `programs.compiled_program(config)`.
+      iterations: how many iterations to train.
+      num_runs: the runs that the device trains.
+
+    Returns:
+      Bytes.
     """
     device = jax.local_devices()[0]
     bounds, size = schedule.device_blocks(num_runs, device)
@@ -320,21 +429,36 @@ def device_bytes(program, iterations, num_runs):
         lambda leaf: jax.ShapeDtypeStruct(leaf.shape, leaf.dtype, sharding=placed),
         program.init.eval_shape(keys, hyperparams),
     )
-    count = jax.ShapeDtypeStruct((), jnp.int32)  # as `run` passes it: a numpy scalar
+    count = jax.ShapeDtypeStruct((), jnp.int32)  # as `schedule.train_blocks` passes it: np.int32
     _, metrics = program.iterate.eval_shape(state, hyperparams, count)
-    stats = program.iterate.lower(state, hyperparams, count).compile().memory_analysis()
+    # Optional in jax's types, for a backend without the analysis.
+    stats = cast(Any, program.iterate.lower(state, hyperparams, count).compile().memory_analysis())
     kept = stats.argument_size_in_bytes + stats.output_size_in_bytes - stats.alias_size_in_bytes
     history = len(schedule.calls(iterations)) * metrics.size * metrics.dtype.itemsize
     return (blocks * (kept + history) + at_once * stats.temp_size_in_bytes
             + stats.generated_code_size_in_bytes)
 
 
-def fitting_chunk_size(program, iterations, num_runs, memory_budget):
+def fitting_chunk_size(
+    program: programs.Program, iterations: int, num_runs: int, memory_budget: int
+) -> int:
     """Runs per chunk such that each device's share, as XLA compiles it, fits `memory_budget` bytes.
 
     The first guess gives every run what one run needs; the guess's own program is then compiled
     and measured, and the chunk shrinks while it does not fit: XLA lays out programs of different
     sizes differently, so their bytes do not grow exactly in proportion to their runs.
+
+    Args:
+      program: `programs.compiled_program(config)`.
+      iterations: how many iterations to train.
+      num_runs: every run of the sweep.
+      memory_budget: bytes of memory one device may use for a chunk.
+
+    Returns:
+      Runs per chunk, a multiple of the device count (`chunk_size`).
+
+    Raises:
+      ValueError: naming `memory_budget`, where it is less than one run needs.
     """
     num_devices = jax.device_count()
     needed = device_bytes(program, iterations, 1)
@@ -353,11 +477,19 @@ def fitting_chunk_size(program, iterations, num_runs, memory_budget):
         max_per_device = max(1, per_device * memory_budget // used)
 
 
-def chunk_size(num_runs, num_devices, max_per_device=None):
+def chunk_size(num_runs: int, num_devices: int, max_per_device: int | None = None) -> int:
     """Runs per chunk: a multiple of `num_devices`, at most `max_per_device` per device.
 
     Of the sizes that need the fewest chunks, the smallest, so that the last chunk needs the least
     padding.
+
+    Args:
+      num_runs: every run to train.
+      num_devices: the devices that train a chunk together.
+      max_per_device: optional: the most runs one device may train at once.
+
+    Returns:
+      Runs per chunk.
     """
     per_device = -(-num_runs // num_devices)
     if max_per_device is not None:
@@ -366,15 +498,31 @@ def chunk_size(num_runs, num_devices, max_per_device=None):
     return per_device * num_devices
 
 
-def last_mean(mean_return):
-    """The mean of the last `SOLVED_WINDOW` iterations (of all, where fewer) in float64:
-    `[..., I]` -> `[...]`. `Summary.final_return` and `jaxpg train`'s last-10 mean both."""
+def last_mean(mean_return: npt.ArrayLike) -> np.ndarray | float:
+    """The mean of the last `SOLVED_WINDOW` iterations (of all, where fewer), in float64.
+
+    `Summary.final_return` and `jaxpg train`'s last-10 mean both.
+
+    Args:
+      mean_return: `[..., I]` per-iteration mean returns.
+
+    Returns:
+      `[...]` float64: a numpy float for `[I]`.
+    """
     window = min(SOLVED_WINDOW, np.shape(mean_return)[-1])
     return np.asarray(mean_return, dtype=np.float64)[..., -window:].mean(axis=-1)
 
 
-def summarize(mean_return, solved_return):
-    """Summary statistics of `[G, S, I]` per-iteration mean returns."""
+def summarize(mean_return: npt.ArrayLike, solved_return: float) -> Summary:
+    """Summary statistics of `[G, S, I]` per-iteration mean returns.
+
+    Args:
+      mean_return: `[G, S, I]` each run's mean return per iteration (`Metrics.mean_return`).
+      solved_return: T, the trailing mean at which a run counts as solved.
+
+    Returns:
+      `Summary` over the G settings, S seeds and I iterations.
+    """
     mean_return = np.asarray(mean_return, dtype=np.float64)
     q25, median, q75 = np.percentile(mean_return, [25, 50, 75], axis=1)
     window = min(SOLVED_WINDOW, mean_return.shape[-1])
@@ -387,9 +535,10 @@ def summarize(mean_return, solved_return):
     ) / window
     reached = trailing >= solved_return
     first_solved = np.where(reached.any(axis=-1), reached.argmax(axis=-1), -1)
-    final_return = last_mean(mean_return)
+    final_return = cast(np.ndarray, last_mean(mean_return))  # [G, S]: an array
     iterations = np.arange(mean_return.shape[-1])
-    solved_by = ((first_solved[..., None] >= 0) & (first_solved[..., None] <= iterations)).mean(axis=1)
+    solved_by = ((first_solved[..., None] >= 0)
+                 & (first_solved[..., None] <= iterations)).mean(axis=1)
     return Summary(
         median=median,
         q25=q25,

@@ -4,7 +4,7 @@ import dataclasses
 import functools
 import inspect
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -13,7 +13,13 @@ import numpy as np
 import optax
 
 from jaxpg import cartpole, losses, policies
+from jaxpg.types import ArrayLike
 from jaxpg.validation import check_int, check_number
+
+# An optimizer of the user's: `learning_rate -> optax.GradientTransformation`.
+OptimizerFactory = Callable[[ArrayLike], optax.GradientTransformation]
+# Domain randomisation as `TrainConfig` keeps it: sorted `(field, (low, high))` pairs.
+Ranges = tuple[tuple[str, tuple[float, float]], ...]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,8 +31,11 @@ class TrainConfig:
 
     Attributes:
       iterations: optimizer steps, each on `episodes` fresh episodes of at most `max_steps` steps.
-      hidden, activation: the default policy network (`policies.PolicyNetwork`), used where
-        `policy` is None; `hidden=()` is a linear policy.
+      episodes: episodes played per optimizer step.
+      max_steps: the most steps of an episode.
+      hidden: the hidden layer sizes of the default policy network (`policies.PolicyNetwork`),
+        used where `policy` is None; `()` is a linear policy.
+      activation: the default network's activation, a name of `policies.ACTIVATIONS`.
       policy: optional flax module mapping observations `[..., 4]` to the logit of P(push left),
         `[...]` or `[..., 1]`, or to the two logits of a categorical policy `[..., 2]`.
       loss: "reinforce" (the book's), "reward-to-go", "baseline", or a function
@@ -35,10 +44,16 @@ class TrainConfig:
         `learning_rate -> optax.GradientTransformation`.
       env: a preset name or a `CartPoleParams`.
       randomize: domain randomisation, `{field: (low, high)}` of physical fields (`PHYSICS`):
-        every episode draws each named field uniformly in [low, high) inside the program.
+        every episode draws each named field uniformly in [low, high) inside the program. Kept
+        as `Ranges`, sorted `(field, (low, high))` pairs of floats.
       solved_return: the mean return that counts as solved.
-      learning_rate, discount, entropy_coef: the hyperparameters (`Hyperparams`); the entropy
-        bonus `-entropy_coef * mean entropy` is added to any loss.
+      learning_rate: the optimizer's learning rate, positive.
+      discount: the discount rate of the returns, in (0, 1].
+      entropy_coef: the weight of the entropy bonus `-entropy_coef * mean entropy` added to any
+        loss, at least 0.
+
+    Raises:
+      ValueError: on construction, naming the first field that is not allowed.
     """
 
     # Fix the program.
@@ -47,18 +62,19 @@ class TrainConfig:
     max_steps: int = 200  # per episode
     hidden: tuple[int, ...] = (5,)
     activation: str = "elu"
-    policy: Any = None
-    loss: str | Callable = "reinforce"
-    optimizer: str | Callable = "adam"
+    policy: nn.Module | None = None
+    loss: str | losses.LossFn = "reinforce"
+    optimizer: str | OptimizerFactory = "adam"
     env: str | cartpole.CartPoleParams = "CartPole-v1"
-    randomize: Any = ()  # a dict {field: (low, high)}, kept as sorted (field, (low, high)) pairs
+    randomize: Any = ()  # a dict {field: (low, high)}, kept as `Ranges`
     solved_return: float = 195.0
     # Varied by sweeps within one program.
     learning_rate: float = 0.01
     discount: float = 0.95
     entropy_coef: float = 0.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
+        """Converts `hidden` and `randomize` to their kept forms and checks every field."""
         object.__setattr__(self, "hidden", tuple(self.hidden))
         for name in ("iterations", "episodes", "max_steps"):
             object.__setattr__(self, name, check_int(name, getattr(self, name)))
@@ -70,62 +86,92 @@ class TrainConfig:
         check_optimizer(self.optimizer)
         check_hyperparams(self.learning_rate, self.discount, self.entropy_coef)
         check_number("solved_return", self.solved_return)
-        self.env_params  # validates
+        _ = self.env_params  # raises for an unknown preset or unphysical values
         object.__setattr__(self, "randomize", check_ranges(self.randomize, self.env_params))
 
     @property
-    def env_params(self):
+    def env_params(self) -> cartpole.CartPoleParams:
+        """The physics of `env`: a preset's, or `env` checked by `cartpole.check_params`."""
         if isinstance(self.env, cartpole.CartPoleParams):
             cartpole.check_params(self.env)
             return self.env
         return cartpole.make_params(self.env)
 
     @property
-    def network(self):
+    def network(self) -> nn.Module:
         """The policy module: `policy`, or the default network of `hidden` and `activation`."""
         if self.policy is not None:
             return self.policy
         return policies.PolicyNetwork(hidden=self.hidden, activation=self.activation)
 
     @property
-    def hyperparams(self):
-        """The config's `Hyperparams` (`env` None for a preset's physics, `compiled_physics`)."""
+    def hyperparams(self) -> "Hyperparams":
+        """The config's `Hyperparams`, scalars: `env` None for a preset (`compiled_physics`)."""
         env = self.env_params
         return Hyperparams(self.learning_rate, self.discount, self.entropy_coef,
                            None if compiled_physics(env) else env)
 
     @property
-    def built_in(self):
-        """Whether the policy, loss and optimizer are jaxpg's or optax's, named: nothing of the
-        user's code decides the training program."""
+    def built_in(self) -> bool:
+        """Whether the policy, loss and optimizer are jaxpg's or optax's, named.
+
+        Then nothing of the user's code decides the training program, which may be kept on disk.
+        """
         return self.policy is None and isinstance(self.loss, str) and isinstance(
             self.optimizer, str)
 
     @property
-    def hand_gradient(self):
-        """Whether training takes the fast path: the default network with the book's loss and no
-        entropy bonus, whose gradient `jaxpg.hand_gradient` computes."""
+    def hand_gradient(self) -> bool:
+        """Whether training takes the fast path, whose gradient `jaxpg.hand_gradient` computes.
+
+        That is the default network with the book's loss and no entropy bonus.
+        """
         return self.policy is None and self.loss == "reinforce" and self.entropy_coef == 0
 
 
 class Hyperparams(NamedTuple):
-    """The settings a sweep varies within one program: scalars, or `[R]` arrays for R runs."""
+    """The settings a sweep varies within one program: scalars, or `[R]` arrays for R runs.
 
-    learning_rate: jax.Array
-    discount: jax.Array
-    entropy_coef: jax.Array
-    # Each run's physics; None for a preset's (`compiled_physics`), the config's.
+    Attributes:
+      learning_rate: float32, the optimizer's learning rate.
+      discount: float32, the discount rate of the returns.
+      entropy_coef: float32, the weight of the entropy bonus.
+      env: each run's physics, leaves as the other fields; None for a preset's
+        (`compiled_physics`), which the program holds as the config's.
+    """
+
+    learning_rate: ArrayLike
+    discount: ArrayLike
+    entropy_coef: ArrayLike
     env: cartpole.CartPoleParams | None
 
-    def per_run(self, runs=1):
-        """These settings for `runs` runs: numpy `[runs]` leaves, floats as training takes them
-        (the optimizer's in float32, the physics in JAX's float, `max_steps` in int32)."""
+    def per_run(self, runs: int = 1) -> "Hyperparams":
+        """These settings, scalars, repeated for `runs` runs.
+
+        Args:
+          runs: how many runs.
+
+        Returns:
+          `Hyperparams` with numpy `[runs]` leaves in the dtypes training takes them: the
+          optimizer's in float32, the physics in JAX's default float, `max_steps` in int32.
+        """
         return stack([self] * runs)
 
 
-def check_ranges(randomize, env_params):
-    """`randomize` as sorted `(field, (low, high))` pairs of floats; a ValueError naming the field
-    for an unknown one, a range whose low is above its high, or bounds that are not physical."""
+def check_ranges(randomize: Any, env_params: cartpole.CartPoleParams) -> Ranges:
+    """`randomize` as sorted `(field, (low, high))` pairs of floats, checked.
+
+    Args:
+      randomize: a dict `{field: (low, high)}`, or `(field, (low, high))` pairs.
+      env_params: the physics whose fields the ranges replace, to check each bound's physics.
+
+    Returns:
+      The ranges as `Ranges`, sorted by field.
+
+    Raises:
+      ValueError: naming the field, for an unknown one, a range whose low is above its high, or
+        bounds that are not finite or not physical.
+    """
     pairs = randomize.items() if isinstance(randomize, dict) else randomize
     ranges = []
     for name, bounds in sorted(pairs):
@@ -145,11 +191,14 @@ def check_ranges(randomize, env_params):
     return tuple(ranges)
 
 
-def compiled_physics(env_params):
-    """Whether training compiles `env_params` into its program, as constants: a preset's physics
-    (`cartpole.PRESETS`) are, so that the book's runs train as they always have; any other
-    physics comes with the runs' `Hyperparams`, so that one program serves every value (XLA folds
-    constants, which rounds some steps otherwise than the same values passed in)."""
+def compiled_physics(env_params: cartpole.CartPoleParams) -> bool:
+    """Whether training compiles `env_params` into its program, as constants.
+
+    A preset's physics (`cartpole.PRESETS`) are compiled in, and train bit for bit as such; any
+    other physics comes with the runs' `Hyperparams`, so that one program serves every value. The
+    two are not interchangeable: XLA folds constants, which rounds some steps otherwise than the
+    same values passed in.
+    """
     return any(env_params == preset for preset in cartpole.PRESETS.values())
 
 
@@ -159,25 +208,42 @@ PHYSICS = ("gravity", "masscart", "masspole", "length", "force_mag", "tau", "x_t
            "theta_threshold_radians")
 
 
-def stack(settings):
-    """`Hyperparams` of R runs from a list of R scalar ones (all with the same static physics)."""
+def stack(settings: Sequence[Hyperparams]) -> Hyperparams:
+    """`Hyperparams` of R runs from R scalar ones.
+
+    Args:
+      settings: R scalar `Hyperparams`, all with the same static physics (or all None).
+
+    Returns:
+      `Hyperparams` with numpy `[R]` leaves: float32 hyperparameters; physics in JAX's default
+      float, integer fields in int32.
+    """
     floats = jax.dtypes.canonicalize_dtype(float)
 
-    def column(*values):
+    def column(*values: Any) -> np.ndarray:
+        """One field's values of every run as a numpy `[R]` array."""
         if isinstance(values[0], int | np.integer) and not isinstance(values[0], bool):
             return np.asarray(values, np.int32)
         return np.asarray(values, floats)
 
     env = None if settings[0].env is None else jax.tree.map(
         column, *[setting.env for setting in settings])
-    hyper = [np.asarray([getattr(s, name) for s in settings], np.float32)
-             for name in HYPERPARAMETERS]
-    return Hyperparams(*hyper, env)
+    learning_rate, discount, entropy_coef = (
+        np.asarray([getattr(s, name) for s in settings], np.float32) for name in HYPERPARAMETERS)
+    return Hyperparams(learning_rate, discount, entropy_coef, env)
 
 
-def check_hyperparams(learning_rate, discount, entropy_coef=0.0):
-    """Raises a ValueError unless the learning rate is positive, the discount in (0, 1] and the
-    entropy coefficient at least 0, each one finite number (`check_number`)."""
+def check_hyperparams(learning_rate: Any, discount: Any, entropy_coef: Any = 0.0) -> None:
+    """Checks the hyperparameters of one run.
+
+    Args:
+      learning_rate: must be positive.
+      discount: must be in (0, 1].
+      entropy_coef: must be at least 0.
+
+    Raises:
+      ValueError: naming the first that is not one finite number (`check_number`) in its range.
+    """
     checks = (("learning_rate", learning_rate, lambda v: v > 0, "positive"),
               ("discount", discount, lambda v: 0 < v <= 1, "in (0, 1]"),
               ("entropy_coef", entropy_coef, lambda v: v >= 0, "at least 0"))
@@ -187,9 +253,9 @@ def check_hyperparams(learning_rate, discount, entropy_coef=0.0):
             raise ValueError(f"{name}: must be {allowed}, got {number}")
 
 
-def _optimizer_factories():
+def _optimizer_factories() -> dict[str, Callable[..., optax.GradientTransformation]]:
     """optax's optimizers: the functions whose first parameter is `learning_rate`."""
-    factories = {}
+    factories: dict[str, Callable[..., optax.GradientTransformation]] = {}
     for name in dir(optax):
         fn = getattr(optax, name)
         if name.startswith("_") or not inspect.isfunction(fn):
@@ -206,21 +272,29 @@ def _optimizer_factories():
 OPTIMIZERS = _optimizer_factories()
 
 
-def steps_on_gradients(optimizer):
-    """Whether the `optax.GradientTransformation` `optimizer` updates from what training passes
-    it, the gradient, its state and the parameters, alone (traced on one float by
-    `jax.eval_shape`, which starts nothing): optax's `lbfgs` also asks for the loss's value and
-    function."""
+def steps_on_gradients(optimizer: optax.GradientTransformation) -> bool:
+    """Whether `optimizer` updates from the gradient, its state and the parameters alone.
+
+    Those are what training passes it; optax's `lbfgs`, for one, also asks for the loss's value
+    and function. The update is traced on one float by `jax.eval_shape`, which compiles nothing.
+
+    Args:
+      optimizer: an optax optimizer.
+
+    Returns:
+      True where its `update(grads, state, params)` traces.
+    """
     leaf = jax.ShapeDtypeStruct((1,), np.float32)
     try:
-        jax.eval_shape(lambda params: optimizer.update(params, optimizer.init(params), params), leaf)
+        jax.eval_shape(
+            lambda params: optimizer.update(params, optimizer.init(params), params), leaf)
     except TypeError:
         return False
     return True
 
 
 @functools.cache
-def _trains(name):
+def _trains(name: str) -> bool:
     """Whether the optimizer `OPTIMIZERS[name]` of a learning rate alone `steps_on_gradients`."""
     try:
         with warnings.catch_warnings():  # of the optimizer's defaults, for whoever trains with it
@@ -230,10 +304,18 @@ def _trains(name):
         return False
 
 
-def check_optimizer(name):
-    """Raises a ValueError unless `name` names an optax optimizer that training can step
-    (`steps_on_gradients`), or is a function (whose result `iteration.check_config` checks
-    before anything compiles)."""
+def check_optimizer(name: Any) -> None:
+    """Checks `TrainConfig.optimizer`: a name of `OPTIMIZERS` that training can step, or a function.
+
+    A function's optimizer is checked by `iteration.check_config`, before anything compiles.
+
+    Args:
+      name: an optax optimizer's name, or a function `learning_rate -> GradientTransformation`.
+
+    Raises:
+      ValueError: for a name that optax lacks or whose optimizer does not
+        `steps_on_gradients`, listing the names allowed.
+    """
     if callable(name):
         return
     if name not in OPTIMIZERS or not _trains(name):
@@ -245,8 +327,16 @@ def check_optimizer(name):
         )
 
 
-def make_optimizer(config, learning_rate):
-    """The optax optimizer of `config` at `learning_rate`."""
+def make_optimizer(config: TrainConfig, learning_rate: ArrayLike) -> optax.GradientTransformation:
+    """The optax optimizer of `config` at `learning_rate`.
+
+    Args:
+      config: the `TrainConfig`, whose `optimizer` names or makes it.
+      learning_rate: a scalar, traced inside the training program.
+
+    Returns:
+      The `optax.GradientTransformation`.
+    """
     if callable(config.optimizer):
         return config.optimizer(learning_rate)
     return OPTIMIZERS[config.optimizer](learning_rate=learning_rate)

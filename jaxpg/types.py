@@ -16,5 +16,6 @@ PRNGKey = jax.Array  # a key of `jax.random.PRNGKey`: uint32 `[2]`, or `[..., 2]
 Params = Any  # a pytree of arrays: a flax module's parameters, an optimizer's state
 Observation = jax.Array  # float32 `[..., 4]`: cart position and velocity, pole angle and velocity
 Action = jax.Array  # int32 `[...]`: 0 pushes the cart left, 1 right
-Policy = Callable[[Observation, jax.Array], Action]  # (obs `[E, 4]`, uniforms `[E]`) -> actions `[E]`
+# A policy as rollouts call it: (observations `[E, 4]`, uniforms `[E]` in [0, 1)) -> actions `[E]`.
+Policy = Callable[[Observation, jax.Array], Action]
 HostArray = np.ndarray  # an array on the host, as numpy gives it

@@ -1,4 +1,5 @@
-"""Result folders replaced whole (also when killed), one writer per folder, temporary files, JSON."""
+"""Result folders replaced whole (also when killed), one writer per folder, temporary files,
+JSON."""
 
 import json
 import os
@@ -30,7 +31,7 @@ def _write(out, files):
 # Writes NEW into the folder argv[1] through `staged`, killed (SIGKILL, which no cleanup
 # survives) just before the argv[2]-th call of os.rename or atomic_files._exchange; argv[3] == "1"
 # makes the system lack the exchange, as one without renameat2 does.
-_KILLED_WRITE = """
+_KILLED_WRITE = f"""
 import os, signal, sys
 from jaxpg import atomic_files
 
@@ -48,9 +49,9 @@ def killed_before(function):
 os.rename = killed_before(os.rename)
 atomic_files._exchange = killed_before(atomic_files._exchange if exchange else lambda a, b: False)
 with atomic_files.staged(out) as stage:
-    for name, text in %r.items():
+    for name, text in {NEW!r}.items():
         (stage / name).write_text(text)
-""" % NEW
+"""
 
 
 def _killed_write(out, kill_at, exchange):

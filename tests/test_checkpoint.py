@@ -137,7 +137,8 @@ def _with_kernel(values):
 @pytest.mark.parametrize(
     "changes, problem",
     [
-        ({"policy_params": _with_kernel(np.complex64(1 + 2j))}, "kernel: expected float32 or float64"),
+        ({"policy_params": _with_kernel(np.complex64(1 + 2j))},
+         "kernel: expected float32 or float64"),
         ({"policy_params": _with_kernel(np.int8(3))}, "kernel: expected float32 or float64"),
         ({"policy_params": _with_kernel(np.float32(np.nan))}, "kernel: values must be finite"),
         ({"policy_params": _with_kernel(np.float64(np.inf))}, "kernel: values must be finite"),

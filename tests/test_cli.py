@@ -31,7 +31,8 @@ SMALL = ["--iterations", "3", "--episodes", "2", "--max-steps", "20", "--quiet",
 
 
 def _run(*args):
-    return subprocess.run([sys.executable, "-m", "jaxpg.cli", *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "jaxpg.cli", *args], capture_output=True,
+                          text=True)
 
 
 def test_train_writes_results_that_evaluate_loads(tmp_path, capsys):
@@ -44,12 +45,14 @@ def test_train_writes_results_that_evaluate_loads(tmp_path, capsys):
     assert (out / "metrics.csv").read_text().splitlines()[0].startswith("iteration,mean_return")
     assert checkpoint.load(out).config.max_steps == 20
     capsys.readouterr()
-    assert cli.run_command(["evaluate", "--policy", str(out), "--episodes", "5", "--backend", "gymnasium"]) == 0
+    assert cli.run_command(["evaluate", "--policy", str(out), "--episodes", "5",
+                            "--backend", "gymnasium"]) == 0
     assert "mean" in capsys.readouterr().out
 
 
 def test_a_second_train_loads_the_programs_the_first_kept(tmp_path):
-    """With the cache on (the default), the programs are kept whole and a second process reuses them."""
+    """With the cache on (the default), the programs are kept whole and a second process reuses
+    them."""
     env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
     args = [a for a in SMALL if a != "--no-cache"]
     for name in ("first", "second"):
@@ -64,8 +67,8 @@ def test_a_second_train_loads_the_programs_the_first_kept(tmp_path):
 
 def test_sweep_writes_summary_and_picture(tmp_path):
     out = tmp_path / "sweep"
-    assert cli.run_command(["sweep", *SMALL, "--seeds", "3", "--lr", "0.01,0.02", "--memory-budget", "1G",
-                     "--out", str(out)]) == 0
+    assert cli.run_command(["sweep", *SMALL, "--seeds", "3", "--lr", "0.01,0.02",
+                            "--memory-budget", "1G", "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert len(summary["grid"]) == 2 and len(summary["fraction_solved"]) == 2
     with np.load(out / "metrics.npz") as npz:
@@ -118,7 +121,8 @@ def test_the_command_sizes_xlas_threads_by_the_runs_it_trains_at_once(args, runs
 
 def test_the_command_configures_xla_for_its_runs_before_it_runs(monkeypatch):
     calls = []
-    monkeypatch.setattr(xla_options, "configure_xla", lambda runs: calls.append(("configure", runs)))
+    monkeypatch.setattr(xla_options, "configure_xla",
+                        lambda runs: calls.append(("configure", runs)))
     monkeypatch.setattr(cli, "_execute", lambda args: calls.append(("execute", args.command)) or 0)
     with pytest.raises(SystemExit) as exit_:
         cli.main(["train", "--seed", "1"])
@@ -264,7 +268,8 @@ def test_train_and_sweep_take_a_loss_an_entropy_bonus_and_a_linear_policy(tmp_pa
 def sweep_folder(tmp_path_factory):
     """A sweep of two seeds at two learning rates, as `jaxpg sweep` writes it."""
     out = tmp_path_factory.mktemp("cli") / "sweep"
-    assert cli.run_command(["sweep", *SMALL, "--seeds", "2", "--lr", "0.01,0.02", "--out", str(out)]) == 0
+    assert cli.run_command(["sweep", *SMALL, "--seeds", "2", "--lr", "0.01,0.02",
+                            "--out", str(out)]) == 0
     return out
 
 
@@ -298,14 +303,15 @@ def test_one_run_of_a_sweep_is_evaluated_and_rendered(sweep_folder, tmp_path, ca
                      episodes=5, max_steps=30, env=cartpole.V1.replace(length=2.0),
                      backend="gymnasium")
     capsys.readouterr()
-    assert cli.run_command(["evaluate", "--policy", str(sweep_folder), "--run", "1,0", "--length", "2",
-                     "--episodes", "5", "--max-steps", "30", "--backend", "gymnasium"]) == 0
+    assert cli.run_command(["evaluate", "--policy", str(sweep_folder), "--run", "1,0",
+                            "--length", "2", "--episodes", "5", "--max-steps", "30",
+                            "--backend", "gymnasium"]) == 0
     assert f"mean {alone.mean:.3f}  std {alone.std:.3f}" in capsys.readouterr().out
     assert cli.run_command(["evaluate", "--policy", str(sweep_folder), "--episodes", "5"]) == 0
     assert "default physics: " in capsys.readouterr().out  # every run, in the default physics
     gif = tmp_path / "run.gif"
-    assert cli.run_command(["render", "--policy", str(sweep_folder), "--run", "0,1", "--out", str(gif),
-                     "--max-steps", "10"]) == 0
+    assert cli.run_command(["render", "--policy", str(sweep_folder), "--run", "0,1",
+                            "--out", str(gif), "--max-steps", "10"]) == 0
     assert gif.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
 
 
@@ -329,7 +335,8 @@ def test_bad_evaluate_input_exits_2_with_one_line_and_writes_nothing(sweep_folde
                                                                       capsys, args, word):
     out = tmp_path / "out"
     try:
-        status = cli.run_command(["evaluate", "--policy", str(sweep_folder), "--out", str(out), *args])
+        status = cli.run_command(["evaluate", "--policy", str(sweep_folder), "--out", str(out),
+                                  *args])
     except SystemExit as exit_:  # argparse's own errors
         status = exit_.code
     lines = capsys.readouterr().err.strip().splitlines()
@@ -420,7 +427,8 @@ def test_divergence_is_reported_with_its_first_iteration(tmp_path):
     assert json.loads((tmp_path / "run/metrics.json").read_text())[
         "first_nonfinite_iteration"] == 1
     with pytest.warns(RuntimeWarning, match="diverged"):
-        assert cli.run_command(["sweep", *args, "--seeds", "2", "--out", str(tmp_path / "sweep")]) == 0
+        assert cli.run_command(["sweep", *args, "--seeds", "2",
+                                "--out", str(tmp_path / "sweep")]) == 0
     rows = [row.split(",") for row in (tmp_path / "sweep/runs.csv").read_text().splitlines()]
     column = rows[0].index("first_nonfinite_iteration")
     assert [row[column] for row in rows[1:]] == ["1", "-1"]  # seed 1's stayed finite
@@ -433,8 +441,9 @@ def test_the_command_warns_in_one_line_and_once_of_an_unreadable_compilation_cac
         warnings.showwarning = cli._show_warning
         for name in ("jit_add", "jit_scan", "jit_where"):
             warnings.warn(f"Error reading persistent compilation cache entry for '{name}': "
-                          f"error: Error -3 while decompressing data: incorrect header check")
-        warnings.warn("something else", RuntimeWarning)
+                          f"error: Error -3 while decompressing data: incorrect header check",
+                          stacklevel=1)
+        warnings.warn("something else", RuntimeWarning, stacklevel=1)
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 2 and "unreadable entries" in lines[0] and "'jit_add'" in lines[0]
     assert lines[1] == "jaxpg: warning: something else"

@@ -58,7 +58,8 @@ def test_float64_run_is_ok():
 
 
 def test_wrong_polemass_length_is_flagged():
-    report = conformance.compare_with_gymnasium(episodes=10, env_params=Phys2dParams(), variants="v1")
+    report = conformance.compare_with_gymnasium(episodes=10, env_params=Phys2dParams(),
+                                                variants="v1")
     assert not report.ok
     (variant,) = report.variants
     # polemass_length enters temp and xacc: 0.6 instead of 0.05 changes the accelerations by far

@@ -1,4 +1,5 @@
-"""The declared lower bounds of the runtime dependencies are what CI's lower-bound smoke installs."""
+"""The declared lower bounds of the runtime dependencies are what CI's lower-bound smoke
+installs."""
 
 import importlib.util
 import pathlib
@@ -47,9 +48,12 @@ def test_the_checker_agrees_on_equal_bounds_in_either_spelling():
 
 
 @pytest.mark.parametrize("pyproject, pins, found", [
-    (PYPROJECT.replace("jax>=0.8.1", "jax>=0.7"), PINS, "jax: pyproject.toml declares >=0.7, lower-bounds.txt pins 0.8.1"),
-    (PYPROJECT, PINS.replace("numpy==2.0.0\n", ""), "numpy: pyproject.toml declares >=2.0, lower-bounds.txt has no pin"),
-    (PYPROJECT, PINS + "scipy==1.13.0\n", "scipy: lower-bounds.txt pins 1.13.0, not a runtime dependency"),
+    (PYPROJECT.replace("jax>=0.8.1", "jax>=0.7"), PINS,
+     "jax: pyproject.toml declares >=0.7, lower-bounds.txt pins 0.8.1"),
+    (PYPROJECT, PINS.replace("numpy==2.0.0\n", ""),
+     "numpy: pyproject.toml declares >=2.0, lower-bounds.txt has no pin"),
+    (PYPROJECT, PINS + "scipy==1.13.0\n",
+     "scipy: lower-bounds.txt pins 1.13.0, not a runtime dependency"),
     (PYPROJECT.replace('"jax>=0.8.1"', '"jax"'), PINS, "'jax' needs exactly one '>=' lower bound"),
     (PYPROJECT, PINS.replace("jax==0.8.1", "jax>=0.8.1"), "'jax>=0.8.1' is not 'name==version'"),
 ])

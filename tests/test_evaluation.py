@@ -133,7 +133,8 @@ def stacked_params(network, grid_shape, seed=0):
     return jax.tree.map(lambda leaf: 3 * leaf.reshape(*grid_shape, *leaf.shape[1:]), params)
 
 
-def assert_cells_equal_evaluate_alone(result, policy_of, episodes, max_steps, seed, env=cartpole.V1):
+def assert_cells_equal_evaluate_alone(result, policy_of, episodes, max_steps, seed,
+                                      env=cartpole.V1):
     grid_shape = result.returns.shape[:2]
     for g, s in np.ndindex(grid_shape):
         for p, setting in enumerate(result.settings):
@@ -188,8 +189,8 @@ def test_a_policy_function_and_the_statistics():
 def test_new_policies_and_physics_of_the_same_shapes_compile_nothing():
     network = policies.PolicyNetwork()
     robustness(stacked_params(network, (2, 2)), GRID, episodes=4, max_steps=20)
-    evaluate(policies.network_policy(network, policies.init_network(jax.random.PRNGKey(0), network)),
-             episodes=4, max_steps=20)
+    policy_params = policies.init_network(jax.random.PRNGKey(0), network)
+    evaluate(policies.network_policy(network, policy_params), episodes=4, max_steps=20)
     with xla_compiles() as compiled:
         robustness(stacked_params(network, (2, 2), seed=1), {"length": [3.0, 4.0, 5.0],
                                                              "masspole": [0.2, 0.3]},

@@ -1,4 +1,4 @@
-"""The fast path's gradient: the book's algorithm computed literally, for runs alone and side by side."""
+"""The fast path's gradient: the book's algorithm computed literally, runs alone and together."""
 
 import functools
 

@@ -66,10 +66,12 @@ LABELS = [f"lr={lr}, discount=0.95" for lr in (0.001, 0.01, 0.1)]
 def test_aggregate_intervals(tmp_path):
     estimate = np.array([20.0, 150.0, 90.0])
     triple = (estimate, estimate - 10, estimate + 15)
-    path = plots.aggregate_intervals(LABELS, {"IQM": triple, "mean": triple}, tmp_path / "intervals.png")
+    path = plots.aggregate_intervals(LABELS, {"IQM": triple, "mean": triple},
+                                     tmp_path / "intervals.png")
     _assert_png(path, 800, 450)
     with pytest.raises(ValueError, match=r"^estimates\['IQM'\]\[2\]"):
-        plots.aggregate_intervals(LABELS, {"IQM": (estimate, estimate, estimate[:2])}, tmp_path / "x.png")
+        plots.aggregate_intervals(LABELS, {"IQM": (estimate, estimate, estimate[:2])},
+                                  tmp_path / "x.png")
     with pytest.raises(ValueError, match="^labels"):
         plots.aggregate_intervals(LABELS[:2], {"IQM": triple}, tmp_path / "x.png")
     with pytest.raises(ValueError, match="^estimates"):
@@ -83,9 +85,11 @@ def test_performance_profiles(tmp_path):
                                       LABELS, tmp_path / "profiles.png")
     _assert_png(path, 800, 450)
     with pytest.raises(ValueError, match="^taus"):
-        plots.performance_profiles(taus[:5], fraction, fraction, fraction, LABELS, tmp_path / "x.png")
+        plots.performance_profiles(taus[:5], fraction, fraction, fraction, LABELS,
+                                   tmp_path / "x.png")
     with pytest.raises(ValueError, match="^high"):
-        plots.performance_profiles(taus, fraction, fraction, fraction[:2], LABELS, tmp_path / "x.png")
+        plots.performance_profiles(taus, fraction, fraction, fraction[:2], LABELS,
+                                   tmp_path / "x.png")
 
 
 def test_iqm_curves(tmp_path):

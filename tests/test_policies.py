@@ -1,4 +1,4 @@
-"""Policies: the book's angle policy, the network's initialisation, sampling and log-probabilities."""
+"""Policies: the book's angle policy, the network's initialisation, sampling, log-probabilities."""
 
 import chex
 import jax
@@ -87,14 +87,16 @@ def test_parameters_flatten_into_one_vector_and_back(hidden):
     assert flat.shape == (size, 3)
     np.testing.assert_array_equal(
         flat[:, 1], np.concatenate([leaf.ravel() for leaf in jax.tree.leaves(runs[1])]))
-    back = policies.unflatten(np.asarray(flat), network)  # on the host, as `schedule.train_blocks` does
+    # On the host, as `schedule.train_blocks` does.
+    back = policies.unflatten(np.asarray(flat), network)
     assert all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(back))
     chex.assert_trees_all_equal(back, jax.tree.map(np.asarray, stacked))
     chex.assert_trees_all_equal(policies.unflatten(policies.flatten(runs[2], network), network),
                                 runs[2])
 
 
-@pytest.mark.parametrize("hidden, activation, match", [((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((2, -1), "elu", "hidden")])
+@pytest.mark.parametrize("hidden, activation, match", [
+    ((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((2, -1), "elu", "hidden")])
 def test_bad_network_settings(hidden, activation, match):
     with pytest.raises(ValueError, match=match):
         policies.check_network(hidden, activation)

@@ -33,7 +33,8 @@ def test_compiles_once_per_config():
     assert programs._program.cache_info().misses == 1
     assert compiled.count("jit(_iterate_stacked)") == 1
     assert not np.array_equal(first.metrics.mean_return, second.metrics.mean_return) or \
-        not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first.policy_params), jax.tree.leaves(second.policy_params)))
+        not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first.policy_params),
+                                                     jax.tree.leaves(second.policy_params)))
 
 
 @pytest.mark.parametrize("num_runs", [1, 2])
@@ -45,7 +46,7 @@ def test_calls_of_several_iterations_train_as_calls_of_one(num_runs, iterations)
     hyperparams = config.hyperparams.per_run(num_runs)
     reported = []
     (result,) = schedule.train_blocks(program, config.iterations, [(keys, hyperparams)],
-                              lambda iteration, _: reported.append(iteration))
+                                      lambda iteration, _: reported.append(iteration))
     assert reported == list(range(config.iterations))
     assert [count for _, count in schedule.calls(iterations)] == (
         [3] if iterations == 3 else [programs.ITERATIONS_PER_CALL, 2])

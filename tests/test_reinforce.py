@@ -1,4 +1,7 @@
-"""`train`: the book's settings learn, transfer to Gymnasium, rerun bit for bit; warm starts, hooks, progress."""
+"""`train`: the book's settings learn, transfer to Gymnasium, rerun bit for bit.
+
+Also warm starts, hooks and progress.
+"""
 
 
 import chex
@@ -53,10 +56,11 @@ def test_progress_reports_every_iteration(capsys):
     hyperparams = config.hyperparams.per_run()
     with progress.bar(config.iterations, stream=stream) as on_iteration:
         (result,) = schedule.train_blocks(programs.compiled_program(config), config.iterations,
-                                  [(reinforce.run_keys([0]), hyperparams)], on_iteration)
+                                          [(reinforce.run_keys([0]), hyperparams)], on_iteration)
     lines = stream.getvalue().splitlines()
     assert [line.split(",")[0] for line in lines] == [f"Iteration: {i}/5" for i in range(1, 6)]
-    assert lines[-1].split(",")[1].startswith(f" mean rewards: {result.metrics.mean_return[0, -1]:.1f}")
+    last_mean = result.metrics.mean_return[0, -1]
+    assert lines[-1].split(",")[1].startswith(f" mean rewards: {last_mean:.1f}")
 
 
 def test_run_keys_are_jax_prng_keys():

@@ -26,7 +26,7 @@ def test_a_run_trains_the_same_beside_a_thousand_others():
     def train_runs(seeds):
         hyperparams = config.hyperparams.per_run(len(seeds))
         (result,) = schedule.train_blocks(program, config.iterations,
-                                  [(reinforce.run_keys(seeds), hyperparams)])
+                                          [(reinforce.run_keys(seeds), hyperparams)])
         return result
 
     many = train_runs(np.arange(1030))
@@ -42,8 +42,8 @@ def test_blocks_on_several_threads_report_every_iteration_in_order():
     hyperparams = config.hyperparams.per_run(num_runs)
     reported = []
     (result,) = schedule.train_blocks(programs.compiled_program(config), config.iterations,
-                              [(reinforce.run_keys(np.arange(num_runs)), hyperparams)],
-                              lambda i, means: reported.append((i, means)))
+                                      [(reinforce.run_keys(np.arange(num_runs)), hyperparams)],
+                                      lambda i, means: reported.append((i, means)))
     assert [i for i, _ in reported] == [0, 1, 2, 3]
     for i, means in reported:
         np.testing.assert_array_equal(means.mean_return, result.metrics.mean_return[:, i])
@@ -72,13 +72,14 @@ def test_blocks_padded_with_copies_train_their_runs_as_alone(cores, monkeypatch)
     blocks, size = schedule.cpu_blocks(5)
     assert size > max(stop - start for start, stop in blocks)  # copies in every block
     hyperparams = train_config.Hyperparams(np.linspace(0.005, 0.02, 5, dtype=np.float32),
-                                           np.full(5, 0.95, np.float32), np.zeros(5, np.float32), None)
+                                           np.full(5, 0.95, np.float32), np.zeros(5, np.float32),
+                                           None)
     part = (reinforce.run_keys(np.arange(5)), hyperparams)
     program = programs.compiled_program(config)
     (together,) = schedule.train_blocks(program, config.iterations, [part])
     for run in range(5):
         (alone,) = schedule.train_blocks(program, config.iterations,
-                                 [jax.tree.map(lambda leaf: leaf[run:run + 1], part)])
+                                         [jax.tree.map(lambda leaf: leaf[run:run + 1], part)])
         assert_trained_alike(jax.tree.map(lambda leaf: leaf[run], together),
                              jax.tree.map(lambda leaf: leaf[0], alone))
 
@@ -97,7 +98,7 @@ def test_a_failing_run_raises_instead_of_hanging():
     hyperparams = config.hyperparams.per_run(300)
     with pytest.raises(RuntimeError, match="device lost"):
         schedule.train_blocks(program._replace(iterate=Failing()), config.iterations,
-                      [(reinforce.run_keys(np.arange(300)), hyperparams)], lambda *_: None)
+                              [(reinforce.run_keys(np.arange(300)), hyperparams)], lambda *_: None)
 
 
 @pytest.mark.parametrize("interruption", [KeyboardInterrupt, RuntimeError])
@@ -123,8 +124,8 @@ def test_an_interrupted_caller_stops_every_worker_at_its_next_call(interruption)
     num_runs = 3 * schedule.CPU_BLOCK  # blocks on every thread
     with pytest.raises(interruption):
         schedule.train_blocks(program._replace(iterate=Counted()), config.iterations,
-                     [(reinforce.run_keys(np.arange(num_runs)), config.hyperparams.per_run(
-                         num_runs))], interrupt)
+                              [(reinforce.run_keys(np.arange(num_runs)),
+                                config.hyperparams.per_run(num_runs))], interrupt)
     stopped = len(calls)  # 7 to 36 seen, of 4 blocks x 100 calls
     assert stopped < len(schedule.calls(config.iterations))
     time.sleep(0.2)

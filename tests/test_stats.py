@@ -121,7 +121,8 @@ def test_hand_checked_probabilities_with_ties():
     # x = 3 beats y = 2 and 1 (2 each, twice: 4); x = 2 ties y = 2 (0.5) and beats 1 (1):
     # 5.5 of 3 * 2 = 6 pairs.
     assert stats.probability_of_improvement([3.0, 3.0, 2.0], [2.0, 1.0]) == 5.5 / 6
-    # x = 1 loses twice (0); the two x = 2 tie both y = 2 (4 * 0.5 = 2); x = 3 wins twice (2): 4 / 8.
+    # x = 1 loses twice (0); the two x = 2 tie both y = 2 (4 * 0.5 = 2); x = 3 wins twice (2):
+    # 4 / 8.
     assert stats.probability_of_improvement([1.0, 2.0, 2.0, 3.0], [2.0, 2.0]) == 0.5
     # Equal scores tie every pair, and so does the interval.
     assert stats.probability_of_improvement(np.full(10, 5.0), np.full(7, 5.0)) == 0.5
@@ -149,7 +150,8 @@ def test_improvement_matrix_is_each_pair_and_its_complement():
     np.testing.assert_allclose(matrix.probability + matrix.probability.T, 1.0, rtol=0, atol=1e-15)
     np.testing.assert_allclose(matrix.low + matrix.high.T, 1.0, rtol=0, atol=1e-15)
     assert matrix.probability[0, 2] == stats.probability_of_improvement(scores[0], scores[2])
-    assert (matrix.low[0, 2], matrix.high[0, 2]) == stats.improvement_ci(scores[0], scores[2], reps=500)
+    assert (matrix.low[0, 2], matrix.high[0, 2]) == stats.improvement_ci(
+        scores[0], scores[2], reps=500)
 
 
 # --- Profiles and curves ----------------------------------------------------------------------
@@ -179,7 +181,8 @@ def test_iqm_curve_resamples_whole_runs():
     assert band.low[0] < band.estimate[0] < band.high[0]
     # One column draws the runs as the stratified bootstrap of one task does.
     one = stats.iqm_curve(runs[:, None])
-    np.testing.assert_allclose((one.low[0], one.high[0]), stats.bootstrap_ci(runs[:, None]), rtol=1e-12)
+    np.testing.assert_allclose((one.low[0], one.high[0]), stats.bootstrap_ci(runs[:, None]),
+                               rtol=1e-12)
 
 
 # --- How many seeds -------------------------------------------------------------------------------
@@ -221,8 +224,10 @@ def test_seeds_needed_without_spread_or_without_difference():
     (lambda: stats.bootstrap_ci([1.0, 2.0], confidence=0), "confidence"),
     (lambda: stats.bootstrap_ci([1.0, 2.0], reps=0), "reps"),
     (lambda: stats.bootstrap_ci([1.0, 2.0], seed=-1), "seed"),
-    (lambda: stats.probability_of_improvement(np.ones((3, 2)), np.ones((3, 4))), "y: expected the tasks"),
-    (lambda: stats.improvement_ci([1.0, 2.0], [1.0]), "y: a confidence interval needs at least 2 runs"),
+    (lambda: stats.probability_of_improvement(np.ones((3, 2)), np.ones((3, 4))),
+     "y: expected the tasks"),
+    (lambda: stats.improvement_ci([1.0, 2.0], [1.0]),
+     "y: a confidence interval needs at least 2 runs"),
     (lambda: stats.improvement_matrix([]), "scores: expected at least one setting"),
     (lambda: stats.performance_profile([1.0, 2.0], taus=[]), "taus"),
     (lambda: stats.iqm_curve([1.0, 2.0]), "scores: expected"),

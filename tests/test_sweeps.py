@@ -68,7 +68,8 @@ def test_chunked_sweep_equals_one_chunk_and_compiles_once(small_sweep, capsys):
 
 def test_budget_below_one_run_is_one_line_error():
     needed = device_bytes(programs.compiled_program(SMALL_CONFIG), SMALL_CONFIG.iterations, 1)
-    with pytest.raises(ValueError, match=rf"^memory_budget: .* allowed: None or at least {needed}$"):
+    message = rf"^memory_budget: .* allowed: None or at least {needed}$"
+    with pytest.raises(ValueError, match=message):
         sweep(SMALL_CONFIG, seeds=[0], memory_budget=needed - 1)
 
 

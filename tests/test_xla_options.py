@@ -95,8 +95,7 @@ def test_under_the_setting_seeds_train_alone_as_side_by_side():
     The programs of one run and of several are compiled apart, each into one function
     (`xla_cpu_small_while_loop_byte_threshold`, in the setting), and XLA can round them
     differently: it did when a run alone asked for 512-bit vectors, or still had a run axis of one
-    entry (`jaxpg.xla_options`). Runs alone cost little once their program is compiled (about 9 s in
-    all, in two processes).
+    entry (docs/performance.md).
     """
     result = subprocess.run([sys.executable, str(CHECK_ALONE), "--seeds", "21"],
                             env={**os.environ, "XLA_FLAGS": ""}, capture_output=True, text=True)
@@ -128,8 +127,8 @@ for runs in (1, schedule.CPU_BLOCK):
 def test_under_the_setting_the_iteration_compiles_into_one_function():
     """The ten-iteration loop of a run alone and of a block of runs is one function: compiled
     sooner than kernel by kernel, and run sooner. A float sum that XLA hands to a library, a
-    library call anywhere in the loop, or a loop of more bytes than `xla_options.WHOLE_LOOP_BYTES` would
-    keep it kernel by kernel."""
+    library call anywhere in the loop, or a loop of more bytes than
+    `xla_options.WHOLE_LOOP_BYTES` would keep it kernel by kernel."""
     result = _run(WHOLE)
     assert result.returncode == 0, result.stderr
     counts = {int(runs): (int(loops), int(calls))
@@ -173,7 +172,8 @@ def test_one_thread_reaches_xla_which_then_splits_no_kernel():
 
 
 def test_xla_gets_one_thread_for_a_process_that_trains_one_run(monkeypatch):
-    for name in (*xla_options.THREADS, xla_options.CPU_DEVICES):  # absent now, and again after the test
+    # Absent now, and again after the test.
+    for name in (*xla_options.THREADS, xla_options.CPU_DEVICES):
         monkeypatch.setenv(name, "")
         monkeypatch.delenv(name)
     monkeypatch.setenv("XLA_FLAGS", "")
@@ -206,7 +206,8 @@ def test_xla_gets_one_thread_for_a_process_that_trains_one_run(monkeypatch):
 def test_the_setting_is_added_to_xla_flags_unless_backend_options_are_given(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
     xla_options.configure_xla()
-    assert os.environ["XLA_FLAGS"] == f"--xla_force_host_platform_device_count=2 {xla_options.SETTING}"
+    assert os.environ["XLA_FLAGS"] == (
+        f"--xla_force_host_platform_device_count=2 {xla_options.SETTING}")
     monkeypatch.setenv("XLA_FLAGS", xla_options.XLA_DEFAULTS)
     xla_options.configure_xla()
     assert os.environ["XLA_FLAGS"] == xla_options.XLA_DEFAULTS
