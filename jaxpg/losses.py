@@ -135,9 +135,10 @@ def reward_to_go(params: Params, apply_fn: ApplyFn, batch: Batch,
 
 
 class ValueNetwork(nn.Module):
-    """Dense(hidden) -> elu -> ... -> Dense(1): a state's value `[...]` from obs `[..., 4]`.
+    """Dense(hidden) -> elu -> ... -> a weighted sum: a state's value `[...]` from obs `[..., 4]`.
 
     By default `hidden=()`: a linear function of the observation, the baseline's default critic.
+    The output's weights start as flax's `Dense` kernels do (LeCun normal), its bias at 0.
 
     Attributes:
       hidden: the sizes of the hidden layers; `()` is linear.
@@ -153,7 +154,12 @@ class ValueNetwork(nn.Module):
         features = obs
         for size in self.hidden:
             features = nn.elu(nn.Dense(size)(features))
-        return nn.Dense(1)(features)[..., 0]
+        # A weighted sum, not Dense(1): a linear critic then trains a run alone bit for bit as in
+        # a sweep (docs/performance.md).
+        weights = self.param("weights", nn.initializers.lecun_normal(in_axis=-1, out_axis=()),
+                             (features.shape[-1],))
+        bias = self.param("bias", nn.initializers.zeros, ())
+        return (features * weights).sum(-1) + bias
 
 
 class Baseline:
