@@ -34,7 +34,7 @@ import sys, jax
 jax.config.update("jax_compilation_cache_dir", sys.argv[1])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 from jaxpg import cli
-cli.run(sys.argv[2:])
+cli.main(sys.argv[2:])
 """
 
 

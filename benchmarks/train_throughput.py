@@ -70,7 +70,7 @@ def compile_programs(program, blocks):
     Returns:
       {"lower_s": until every program is traced and lowered, "compile_s": then until every one is
       compiled}; `iterate`'s compile starts while `init` is still being traced, so their sum is
-      the time `run` takes to have its programs, and neither part alone is XLA's.
+      the time `schedule.train_blocks` takes to have its programs, and neither part alone is XLA's.
     """
     start = time.perf_counter()
     programs = schedule.prepare(program, blocks)

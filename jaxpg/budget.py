@@ -6,17 +6,17 @@ one line, not in a crash or a hang.
 The estimate (`needed_bytes`) is a host's, in floats of JAX's default dtype:
 
 - each step of each episode that a run plays: `STEP_FLOATS`, plus `UNIT_FLOATS` per hidden unit of
-  the default network (and of a loss's critic): its record, the loss's values and every layer's
-  activations with their gradients, as XLA lays out one iteration;
+  the default network: its record, the loss's values and every layer's activations with their
+  gradients, as XLA lays out one iteration;
 - the parameters of every run, with their gradient and optimizer state: `PARAMETER_COPIES` floats
   each;
 - the metrics of every run, `METRIC_FLOATS` per iteration, and `CALL_BYTES` of bookkeeping for
   each program call of each block of runs (`schedule.train_blocks`).
 
 Steps count for the runs that train at once on a CPU, one block of runs per core
-(`schedule.cpu_blocks`); parameters and metrics for every run. A user's own module adds what this
-cannot see without tracing it, as does the device memory of an accelerator, which a sweep's
-`memory_budget` bounds by XLA's own account (`sweeps.fitting_chunk_size`).
+(`schedule.cpu_blocks`); parameters and metrics for every run. A user's own module or a loss's
+critic adds what this cannot see without tracing it, as does the device memory of an accelerator,
+which a sweep's `memory_budget` bounds by XLA's own account (`sweeps.fitting_chunk_size`).
 """
 
 import decimal

@@ -97,7 +97,7 @@ def _physics(text: str) -> tuple[float, float] | list[float]:
 
 
 def _add_physics_args(parser: argparse.ArgumentParser, ranges: bool = True) -> None:
-    """Adds a flag per physics field (`--pole-length`, ...): values, and ranges where `ranges`."""
+    """Adds a flag per physics field (`--length`, ...): values, and ranges where `ranges`."""
     from jaxpg.train_config import PHYSICS
 
     for name in PHYSICS:
@@ -178,7 +178,7 @@ def _enable_compilation_cache(disabled: bool, whole_programs: bool = False) -> N
 
     The next process then skips compiling them. `train` and `sweep` compile nothing but the
     training programs and keep them whole (`whole_programs`, `executables`): a later process
-    neither traces nor compiles them. The other commands use JAX's persistent compilation cache.
+    neither traces nor compiles them. `reproduce` uses JAX's persistent compilation cache.
     One process never uses both (`executables` says why).
     """
     if disabled:

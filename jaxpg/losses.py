@@ -89,7 +89,8 @@ def masked_mean(values: ArrayLike, alive: Array) -> Array:
 
     Args:
       values: `[T, E, ...]`; booleans and integers count as floats (0 and 1 for booleans).
-      alive: bool `[T, E]` (or broadcastable to `values`): the steps to average over.
+      alive: bool `[T, E]`, with trailing axes of size 1 where `values` has more (`[T, E, 1]`
+        for `[T, E, K]`): the steps to average over.
 
     Returns:
       float `[...]`, the mean over the first two axes; 0 where no step is alive.

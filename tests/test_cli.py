@@ -115,7 +115,7 @@ def test_bad_input_exits_2_with_one_line(args, word):
     (["evaluate"], None),
 ])
 def test_the_command_sizes_xlas_threads_by_the_runs_it_trains_at_once(args, runs):
-    """`run` hands this count to `xla_options.configure_xla`: one thread for XLA for one run."""
+    """`main` hands this count to `xla_options.configure_xla`: one thread for XLA for one run."""
     assert cli._runs_at_once(cli.build_parser().parse_args(args)) == runs
 
 
@@ -172,7 +172,7 @@ def _result(folder):
 
 @pytest.mark.skipif(shutil.which("strace") is None, reason="needs strace")
 def test_a_train_killed_at_any_rename_leaves_the_earlier_result_or_the_new_one(tmp_path):
-    """The issue's reproduction: strace kills the run as it enters its Nth rename (or the
+    """A reproduction: strace kills the run as it enters its Nth rename (or the
     exchange), for every N until one run ends; the folder holds one run's results each time."""
     out, reference = tmp_path / "run", tmp_path / "reference"
     assert cli.run_command(["train", *SMALL, "--seed", "0", "--out", str(out)]) == 0

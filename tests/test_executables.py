@@ -107,8 +107,8 @@ def test_a_program_from_jaxs_cache_is_not_kept(store, monkeypatch):
 @pytest.mark.parametrize("kept", [False, True])
 @pytest.mark.parametrize("placed", [False, True], ids=["numpy", "committed"])
 def test_each_program_is_compiled_once_ahead_of_its_calls(kept, placed, tmp_path):
-    """`run` prepares its programs for the arrays its calls pass: numpy ones, or jax arrays
-    committed to a device (as a sweep places them), whose state stays committed there."""
+    """`schedule.train_blocks` prepares its programs for the arrays its calls pass: numpy ones, or
+    jax arrays committed to a device (as a sweep places them), whose state stays committed there."""
     if kept:
         executables.keep_programs(tmp_path)
     _new_process()

@@ -50,12 +50,18 @@ def _played(config, params_seed, rollout_seed):
     return network, policy_params, transitions
 
 
+def _compiled(function, network):
+    """`function(policy_params, network, transitions, advantages)`, compiled for `network`
+    (evaluated op by op, a gradient of a few hundred steps takes seconds)."""
+    return jax.jit(lambda *args: function(args[0], network, *args[1:]))
+
+
 def _assert_accumulated_equals_autodiff(policy_params, network, transitions, advantages):
-    expected = jax.value_and_grad(hand_gradient.reinforce_loss)(
-        policy_params, network, transitions, advantages)
+    expected = _compiled(jax.value_and_grad(hand_gradient.reinforce_loss), network)(
+        policy_params, transitions, advantages)
     chex.assert_trees_all_close(
-        hand_gradient.loss_and_grad(policy_params, network, transitions, advantages), expected,
-        rtol=1e-5, atol=1e-7)
+        _compiled(hand_gradient.loss_and_grad, network)(policy_params, transitions, advantages),
+        expected, rtol=1e-5, atol=1e-7)
 
 
 def test_gradient_equals_the_books_algorithm():
@@ -63,7 +69,8 @@ def test_gradient_equals_the_books_algorithm():
     assert int(transitions.alive.sum()) > 40  # several steps of several episodes
     advantages = returns.discount_and_normalize_masked(transitions.reward, transitions.alive, 0.95)
     book = _book_gradient(network, policy_params, transitions)
-    ours = jax.grad(hand_gradient.reinforce_loss)(policy_params, network, transitions, advantages)
+    ours = _compiled(jax.grad(hand_gradient.reinforce_loss), network)(
+        policy_params, transitions, advantages)
     chex.assert_trees_all_close(ours, book, rtol=2e-4, atol=1e-6)
     # The loss and gradient that training accumulates step by step are the same.
     _assert_accumulated_equals_autodiff(policy_params, network, transitions, advantages)
@@ -102,7 +109,8 @@ def test_accumulated_gradient_of_runs_side_by_side():
         chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., r : r + 1],
                                                         (loss, grads)))
         params, mine, weights = _one_run(r, False, *played)
-        expected = jax.value_and_grad(hand_gradient.reinforce_loss)(params, network, mine, weights)
+        expected = _compiled(jax.value_and_grad(hand_gradient.reinforce_loss), network)(
+            params, mine, weights)
         chex.assert_trees_all_close(jax.tree.map(lambda leaf: leaf[..., 0], alone), expected,
                                     rtol=1e-5, atol=1e-7)
 

@@ -120,8 +120,7 @@ def test_the_baselines_seeds_train_alone_as_in_a_sweep_for_the_books_150_iterati
     """Seeds 0 to 15 with the baseline loss, alone and in one block (`benchmarks/check_alone.py`):
     the same parameters after 150 iterations of the book's size. A few iterations of a small
     batch do not show every difference: a linear critic written as `Dense(1)` trained 13 of these
-    16 seeds differently alone, each first by one unit in the last place after 16 or more
-    iterations (docs/performance.md)."""
+    16 seeds differently alone (docs/performance.md)."""
     check_alone = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "check_alone.py"
     result = subprocess.run(
         [sys.executable, str(check_alone), "--seeds", "16", "--variant", "baseline"],

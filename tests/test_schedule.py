@@ -103,8 +103,8 @@ def test_a_failing_run_raises_instead_of_hanging():
 
 @pytest.mark.parametrize("interruption", [KeyboardInterrupt, RuntimeError])
 def test_an_interrupted_caller_stops_every_worker_at_its_next_call(interruption):
-    """Ctrl-C (KeyboardInterrupt) while the runs train, or the hook's error: `run` raises it once
-    the workers have stopped, each before its next program call, not when training ends."""
+    """Ctrl-C (KeyboardInterrupt) while the runs train, or the hook's error: `train_blocks` raises
+    it once the workers have stopped, each before its next program call, not when training ends."""
     config = TrainConfig(iterations=1000, episodes=2, max_steps=10)
     program = programs.compiled_program(config)
     calls = []
