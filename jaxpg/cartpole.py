@@ -13,7 +13,7 @@ import numpy as np
 from flax import struct
 
 from jaxpg.types import ArrayLike, Observation, PRNGKey
-from jaxpg.validation import check_choice
+from jaxpg.validation import check_choice, check_finite
 
 INTEGRATORS = ("euler", "semi-implicit")
 
@@ -206,10 +206,8 @@ def check_params(env_params: CartPoleParams) -> None:
     check_choice("integrator", env_params.integrator, INTEGRATORS)
     for name in _NUMBERS:
         value = _concrete(getattr(env_params, name))
-        if value is not None and value.dtype.kind not in "iuf":
-            raise ValueError(f"{name}: must be a number, got {value}")
-        if value is not None and not np.all(np.isfinite(value)):
-            raise ValueError(f"{name}: must be finite, got {value}")
+        if value is not None:
+            check_finite(name, value)
     steps = _concrete(env_params.max_steps)
     if steps is not None and not (steps.dtype.kind in "iu" and np.all(steps < MAX_STEPS_LIMIT)):
         raise ValueError(f"max_steps: must be an integer in [1, 2**31), got {steps}")

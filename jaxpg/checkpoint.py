@@ -42,6 +42,7 @@ from flax import serialization
 
 from jaxpg import atomic_files, cartpole, iteration, losses, policies, train_config
 from jaxpg.types import Params
+from jaxpg.validation import check_finite
 
 if TYPE_CHECKING:
     from jaxpg import sweeps
@@ -414,5 +415,5 @@ def _check_floats(tree: object, name: str, finite: bool) -> None:
         elif not isinstance(leaf, np.ndarray) or leaf.dtype not in _FLOAT_DTYPES:
             got = leaf.dtype if isinstance(leaf, np.ndarray) else type(leaf).__name__
             raise ValueError(f"{where}: expected float32 or float64 values, got {got}")
-        elif finite and not np.isfinite(leaf).all():
-            raise ValueError(f"{where}: values must be finite, got NaN or infinity")
+        elif finite:
+            check_finite(where, leaf)

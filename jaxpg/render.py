@@ -19,7 +19,7 @@ from jaxpg import atomic_files, cartpole, rollout
 from jaxpg.atomic_files import StrPath
 from jaxpg.cartpole import CartPoleParams, CartPoleState
 from jaxpg.types import HostArray, Policy
-from jaxpg.validation import check_int
+from jaxpg.validation import check_finite, check_int
 
 Colour = tuple[int, int, int]  # red, green, blue, each 0 to 255
 
@@ -60,8 +60,7 @@ def render_frame(state: CartPoleState | npt.ArrayLike, env_params: CartPoleParam
             f"state: expected a CartPoleState or an array of shape [4] or [B, 4], "
             f"got shape {values.shape}"
         )
-    if not np.all(np.isfinite(values)):
-        raise ValueError("state: values must be finite")
+    check_finite("state", values)
     batch = values.reshape(-1, 4)
     frames = np.full((len(batch), SCREEN_HEIGHT, SCREEN_WIDTH, 3), 255, dtype=np.uint8)  # white
     scale = SCREEN_WIDTH / (2 * float(env_params.x_threshold))

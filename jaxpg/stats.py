@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.stats
 
-from jaxpg.validation import check_int
+from jaxpg.validation import check_finite, check_int
 
 # Resampled scores held at once (float64, plus as many int64 indices): 32 MiB each.
 _CHUNK_SCORES = 2**22
@@ -472,9 +472,7 @@ def _check_scores(scores: npt.ArrayLike, name: str = "scores") -> np.ndarray:
         raise ValueError(f"{name}: expected [runs] or [runs, tasks], got shape {scores.shape}")
     if scores.size == 0:
         raise ValueError(f"{name}: empty, expected at least one score")
-    if not np.isfinite(scores).all():
-        raise ValueError(f"{name}: every score must be finite (no NaN or inf)")
-    return scores
+    return check_finite(name, scores)
 
 
 def _check_interval_args(

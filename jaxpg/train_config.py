@@ -14,7 +14,7 @@ import optax
 
 from jaxpg import cartpole, losses, policies
 from jaxpg.types import ArrayLike
-from jaxpg.validation import check_int, check_number
+from jaxpg.validation import check_finite, check_int, check_number
 
 # An optimizer of the user's: `learning_rate -> optax.GradientTransformation`.
 OptimizerFactory = Callable[[ArrayLike], optax.GradientTransformation]
@@ -183,9 +183,8 @@ def check_ranges(randomize: Any, env_params: cartpole.CartPoleParams) -> Ranges:
             raise ValueError(f"{name}: expected a range (low, high), got {bounds!r}") from None
         if not low <= high:
             raise ValueError(f"{name}: the range's low is above its high: ({low}, {high})")
+        check_finite(name, (low, high))
         for bound in (low, high):
-            if not np.isfinite(bound):
-                raise ValueError(f"{name}: must be finite, got {bound}")
             cartpole.check_params(env_params.replace(**{name: bound}))
         ranges.append((name, (low, high)))
     return tuple(ranges)

@@ -54,10 +54,25 @@ def check_number(name: str, value: Any) -> float:
     if array.ndim != 0 or array.dtype.kind not in "iuf":
         hint = " (one value; a sweep's grid takes several)" if array.ndim else ""
         raise ValueError(f"{name}: must be a number{hint}, got {value!r}")
-    number = float(array)
-    if not np.isfinite(number):
-        raise ValueError(f"{name}: must be finite, got {number}")
-    return number
+    return float(check_finite(name, array))
+
+
+def check_finite(name: str, values: Any) -> np.ndarray:
+    """`values` as a numpy array; a ValueError naming `name` unless every entry is finite.
+
+    Args:
+      name: the argument's name, which the message starts with.
+      values: a number or an array of them, of any shape (not bools or strings).
+
+    Returns:
+      `values` as a numpy array.
+    """
+    array = np.asarray(values)
+    if array.dtype.kind not in "iuf":
+        raise ValueError(f"{name}: must be a number, got {values!r}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name}: must be finite, got NaN or infinity")
+    return array
 
 
 def check_choice(name: str, value: Any, allowed: Collection[str], what: str = "") -> str:

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from jaxpg.validation import check_choice, check_int, check_number
+from jaxpg.validation import check_choice, check_finite, check_int, check_number
 
 
 @pytest.mark.parametrize("value", [0, 7, np.int64(7), np.uint32(2**32 - 1)])
@@ -34,11 +34,22 @@ def test_finite_real_numbers_pass_as_floats(value):
     (True, r"^discount: must be a number, got True$"),
     ("0.9", r"^discount: must be a number, got '0.9'$"),
     ([0.9, 0.95], r"^discount: must be a number \(one value; a sweep's grid takes several\)"),
-    (float("nan"), r"^discount: must be finite, got nan$"),
+    (float("nan"), r"^discount: must be finite, got NaN or infinity$"),
 ])
 def test_other_numbers_are_one_line_errors_naming_the_argument(value, message):
     with pytest.raises(ValueError, match=message):
         check_number("discount", value)
+
+
+@pytest.mark.parametrize(("values", "message"), [
+    ([1.0, np.inf], r"^scores: must be finite, got NaN or infinity$"),
+    (np.array([[0.5], [np.nan]]), r"^scores: must be finite, got NaN or infinity$"),
+    (["a"], r"^scores: must be a number, got \['a'\]$"),
+])
+def test_arrays_with_an_entry_not_finite_are_one_line_errors(values, message):
+    np.testing.assert_array_equal(check_finite("scores", [[1, 2]]), [[1, 2]])
+    with pytest.raises(ValueError, match=message):
+        check_finite("scores", values)
 
 
 def test_a_choice_outside_the_allowed_names_them_all():
