@@ -179,7 +179,7 @@ class Baseline:
     """
 
     # A flax module is an immutable dataclass: one default instance is safe to share.
-    def __init__(self, critic: nn.Module = ValueNetwork()) -> None:  # noqa: B008
+    def __init__(self, critic: nn.Module = ValueNetwork()) -> None:
         self.critic = critic
 
     def __call__(self, params: Params, apply_fn: ApplyFn, batch: Batch,

@@ -37,7 +37,7 @@ def run_keys(seeds: ArrayLike | Sequence[int]) -> HostArray:
 
 
 # A frozen dataclass: one default instance is safe to share.
-def train(config: TrainConfig = TrainConfig(), seed: int = 0,  # noqa: B008
+def train(config: TrainConfig = TrainConfig(), seed: int = 0,
           init_params: Params | None = None,
           on_iteration: Callable[[int, Metrics], None] | None = None,
           show_progress: bool = True) -> TrainResult:

@@ -254,11 +254,8 @@ def check_arguments(
     return check_seeds(seeds), settings
 
 
-_DEFAULT_CONFIG = train_config.TrainConfig()  # frozen: one instance serves every call
-
-
 def sweep(
-    config: train_config.TrainConfig = _DEFAULT_CONFIG,
+    config: train_config.TrainConfig = train_config.TrainConfig(),
     seeds: Seeds = range(64),
     grid: Grid = None,
     show_progress: bool = True,
@@ -327,10 +324,9 @@ def sweep(
     reinforce.warn_if_diverged(
         jax.tree.map(lambda leaf: leaf.reshape(num_runs, -1), result.metrics),
         [f"seed {seed} with {setting}" for setting in settings for seed in seeds])
-    evaluation = result.evaluation
-    return SweepResult(seeds, settings, result.policy_params, result.metrics, summary,
-                       None if evaluation is None else evaluation.sampled,
-                       None if evaluation is None else evaluation.greedy)
+    sampled, greedy = (None, None) if result.evaluation is None else result.evaluation
+    return SweepResult(seeds, settings, result.policy_params, result.metrics, summary, sampled,
+                       greedy)
 
 
 def run_inputs(

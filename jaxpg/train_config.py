@@ -227,9 +227,8 @@ def stack(settings: Sequence[Hyperparams]) -> Hyperparams:
 
     env = None if settings[0].env is None else jax.tree.map(
         column, *[setting.env for setting in settings])
-    learning_rate, discount, entropy_coef = (
-        np.asarray([getattr(s, name) for s in settings], np.float32) for name in HYPERPARAMETERS)
-    return Hyperparams(learning_rate, discount, entropy_coef, env)
+    return Hyperparams(**{name: np.asarray([getattr(s, name) for s in settings], np.float32)
+                          for name in HYPERPARAMETERS}, env=env)
 
 
 def check_hyperparams(learning_rate: Any, discount: Any, entropy_coef: Any = 0.0) -> None:

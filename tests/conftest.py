@@ -8,6 +8,8 @@ from jaxpg import xla_options
 xla_options.configure_xla()
 
 import contextlib
+import os
+import pathlib
 import subprocess
 import sys
 
@@ -67,6 +69,14 @@ def xla_compiles():
         yield names
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
+
+
+def check_alone(*args):
+    """`benchmarks/check_alone.py` with `args`, under its own XLA setting (that of the `jaxpg`
+    command): the finished process, its output captured."""
+    script = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "check_alone.py"
+    return subprocess.run([sys.executable, str(script), *args],
+                          env={**os.environ, "XLA_FLAGS": ""}, capture_output=True, text=True)
 
 
 def assert_trained_alike(actual, expected):

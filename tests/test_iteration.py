@@ -2,10 +2,6 @@
 optimizer, checked before compiling, trained alike alone and in a sweep."""
 
 import dataclasses
-import os
-import pathlib
-import subprocess
-import sys
 
 import chex
 import flax.linen as nn
@@ -14,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-from conftest import assert_trained_alike, xla_compiles
+from conftest import assert_trained_alike, check_alone, xla_compiles
 
 from jaxpg import (
     TrainConfig,
@@ -121,10 +117,7 @@ def test_the_baselines_seeds_train_alone_as_in_a_sweep_for_the_books_150_iterati
     the same parameters after 150 iterations of the book's size. A few iterations of a small
     batch do not show every difference: a linear critic written as `Dense(1)` trained 13 of these
     16 seeds differently alone (docs/performance.md)."""
-    check_alone = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "check_alone.py"
-    result = subprocess.run(
-        [sys.executable, str(check_alone), "--seeds", "16", "--variant", "baseline"],
-        env={**os.environ, "XLA_FLAGS": ""}, capture_output=True, text=True)
+    result = check_alone("--seeds", "16", "--variant", "baseline")
     assert result.stdout.startswith("0 of 16 seeds ended with other parameters alone"), (
         result.stdout + result.stderr)
 

@@ -1,16 +1,14 @@
 """jaxpg's XLA setting for its own processes changes how fast they train, not what they train."""
 
 import os
-import pathlib
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from conftest import check_alone
 
 from jaxpg import schedule, xla_options
-
-CHECK_ALONE = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "check_alone.py"
 
 # Trains one seed (a run alone) and three (one block, padded to four: the blocks of one core) and
 # saves the results, with or without the setting.
@@ -97,8 +95,7 @@ def test_under_the_setting_seeds_train_alone_as_side_by_side():
     differently: it did when a run alone asked for 512-bit vectors, or still had a run axis of one
     entry (docs/performance.md).
     """
-    result = subprocess.run([sys.executable, str(CHECK_ALONE), "--seeds", "21"],
-                            env={**os.environ, "XLA_FLAGS": ""}, capture_output=True, text=True)
+    result = check_alone("--seeds", "21")
     assert result.returncode == 0, result.stdout + result.stderr
 
 
