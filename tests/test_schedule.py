@@ -107,26 +107,32 @@ def test_an_interrupted_caller_stops_every_worker_at_its_next_call(interruption)
     it once the workers have stopped, each before its next program call, not when training ends."""
     config = TrainConfig(iterations=1000, episodes=2, max_steps=10)
     program = programs.compiled_program(config)
+    num_runs = 3 * schedule.CPU_BLOCK  # blocks on every thread
+    num_blocks = len(schedule.cpu_blocks(num_runs)[0])
+    num_workers = min(num_blocks, schedule.usable_cores())
     calls = []
+    interrupted = threading.Event()
 
-    class Counted:  # the program's iteration, counting its calls
+    class Held:  # the program's iteration, counting its calls; a worker's second round waits
         def prepare(self, *args):
             return program.iterate.prepare(*args)
 
         def __call__(self, *args):
             calls.append(threading.get_ident())
+            if calls.count(threading.get_ident()) > num_blocks // num_workers:
+                assert interrupted.wait(timeout=60)  # until well after the caller was interrupted
             return program.iterate(*args)
 
     def interrupt(iteration, metrics):
-        if iteration == 0:
-            raise interruption
+        assert iteration == 0  # every block's first call is done; each worker holds its next
+        threading.Timer(0.5, interrupted.set).start()
+        raise interruption
 
-    num_runs = 3 * schedule.CPU_BLOCK  # blocks on every thread
     with pytest.raises(interruption):
-        schedule.train_blocks(program._replace(iterate=Counted()), config.iterations,
+        schedule.train_blocks(program._replace(iterate=Held()), config.iterations,
                               [(reinforce.run_keys(np.arange(num_runs)),
                                 config.hyperparams.per_run(num_runs))], interrupt)
-    stopped = len(calls)  # 7 to 36 seen, of 4 blocks x 100 calls
-    assert stopped < len(schedule.calls(config.iterations))
+    # Each worker made the one call it held and no other, of 100 calls per block.
+    assert len(calls) == num_blocks + num_workers
     time.sleep(0.2)
-    assert len(calls) == stopped  # no worker still calls
+    assert len(calls) == num_blocks + num_workers  # no worker still calls
