@@ -16,7 +16,7 @@ holding a msgpack map written by `flax.serialization.msgpack_serialize`:
     policy_params   the flax state dict of the policy network, e.g.
                     {"params": {"Dense_0": {"kernel": [4, 5], "bias": [5]}, "Dense_1": {...}}},
                     arrays stored as flax's msgpack ndarray extension (dtype, shape, raw bytes),
-                    float32 or float64 and finite
+                    float32 or float64 (a diverged run's hold NaNs)
     metrics         nil, or a map of `Metrics` fields to float32 or float64 arrays (`[I]`
                     per-iteration statistics), `extra` a map of the loss's own metrics
     runs            a sweep's only: {"grid": its G settings (maps of field to number), "seeds":
@@ -42,7 +42,6 @@ from flax import serialization
 
 from jaxpg import atomic_files, cartpole, iteration, losses, policies, train_config
 from jaxpg.types import Params
-from jaxpg.validation import check_finite
 
 if TYPE_CHECKING:
     from jaxpg import sweeps
@@ -323,8 +322,8 @@ def load(
     Raises:
       FileNotFoundError: there is no such file.
       ValueError: the file is truncated, not a jaxpg checkpoint, from a newer format version, or
-        holds weights that are not finite float32 or float64 arrays (metrics: not float32 or
-        float64); the message names the path and the field.
+        holds weights or metrics that are not float32 or float64 arrays; the message names the
+        path and the field.
     """
     path = resolve(path)
     try:
@@ -352,12 +351,12 @@ def load(
         runs = payload.get("runs")
         grid = None if runs is None else [dict(setting) for setting in runs["grid"]]
         seeds = None if runs is None else np.asarray(runs["seeds"], np.int64)
-        _check_floats(payload["policy_params"], "policy_params", finite=True)
+        _check_floats(payload["policy_params"], "policy_params")
         policy_params = jax.tree.map(jnp.asarray, payload["policy_params"])
         _check_params_match(policy_params, config, "policy_params", _grid_shape(runs))
         metrics = payload.get("metrics")
         if metrics is not None:
-            _check_floats(metrics, "metrics", finite=False)  # a diverged run's are not finite
+            _check_floats(metrics, "metrics")
             metrics = iteration.Metrics(**{k: jax.tree.map(jnp.asarray, v)
                                            for k, v in metrics.items()})
     except (AttributeError, KeyError, TypeError, ValueError) as e:
@@ -401,19 +400,17 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
 _FLOAT_DTYPES = (np.float32, np.float64)
 
 
-def _check_floats(tree: object, name: str, finite: bool) -> None:
+def _check_floats(tree: object, name: str) -> None:
     """Raises a ValueError naming the first leaf of `tree` that is not a float32 or float64 array.
 
-    Where `finite`, also the first that holds a NaN or an infinity.
+    NaNs and infinities are allowed: a diverged run's parameters and metrics hold them.
     """
     if not isinstance(tree, dict):
         raise ValueError(f"{name}: expected a map, got {type(tree).__name__}")
     for key, leaf in tree.items():
         where = f"{name}.{key}"
         if isinstance(leaf, dict):
-            _check_floats(leaf, where, finite)
+            _check_floats(leaf, where)
         elif not isinstance(leaf, np.ndarray) or leaf.dtype not in _FLOAT_DTYPES:
             got = leaf.dtype if isinstance(leaf, np.ndarray) else type(leaf).__name__
             raise ValueError(f"{where}: expected float32 or float64 values, got {got}")
-        elif finite:
-            check_finite(where, leaf)

@@ -356,8 +356,9 @@ def _join_processes(args: argparse.Namespace) -> bool:
         raise ValueError(
             "coordinator: give --coordinator, --num-processes and --process-id together, or none")
     host, _, port = args.coordinator.rpartition(":")
-    if not host or not port.isdigit():
-        raise ValueError(f"coordinator: expected HOST:PORT, got {args.coordinator!r}")
+    if not host or not port.isdigit() or not 0 < int(port) < 2**16:
+        raise ValueError(f"coordinator: expected HOST:PORT with PORT in [1, 65535], "
+                         f"got {args.coordinator!r}")
     check_int("num_processes", args.num_processes)
     if not 0 <= args.process_id < args.num_processes:
         raise ValueError(f"process_id: must be in [0, {args.num_processes}), got {args.process_id}")

@@ -93,6 +93,8 @@ def test_sweep_writes_summary_and_picture(tmp_path):
     (["sweep", "--discount", "0.9,2"], "discount"),
     (["sweep", "--memory-budget", "2X"], "--memory-budget"),
     (["sweep", "--coordinator", "localhost:1234"], "coordinator"),
+    (["sweep", "--coordinator", "localhost:99999", "--num-processes", "2", "--process-id", "0"],
+     "coordinator: expected HOST:PORT with PORT in [1, 65535]"),
     (["evaluate", "--backend", "mujoco"], "backend"),
     (["evaluate", "--policy", "/nonexistent/dir"], "policy"),
     (["evaluate", "--env", "CartPole-v7"], "env"),
