@@ -55,9 +55,11 @@ def check_network(hidden: Sequence[int], activation: str) -> None:
         unless it is one of `ACTIVATIONS`.
     """
     check_choice("activation", activation, ACTIVATIONS)
-    if any(isinstance(h, bool) or not isinstance(h, int | np.integer) or h < 1 for h in hidden):
-        raise ValueError(f"hidden: must be positive layer sizes (none: a linear policy), "
-                         f"got {tuple(hidden)}")
+    if not isinstance(hidden, tuple | list) or any(
+            isinstance(h, bool) or not isinstance(h, int | np.integer) or h < 1 for h in hidden):
+        got = tuple(hidden) if isinstance(hidden, tuple | list) else repr(hidden)
+        raise ValueError(f"hidden: must be a tuple of positive layer sizes (none: a linear "
+                         f"policy), got {got}")
 
 
 class PolicyNetwork(nn.Module):

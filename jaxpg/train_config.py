@@ -4,7 +4,7 @@ import dataclasses
 import functools
 import inspect
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -75,7 +75,8 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         """Converts `hidden` and `randomize` to their kept forms and checks every field."""
-        object.__setattr__(self, "hidden", tuple(self.hidden))
+        if isinstance(self.hidden, Iterable) and not isinstance(self.hidden, str):
+            object.__setattr__(self, "hidden", tuple(self.hidden))
         for name in ("iterations", "episodes", "max_steps"):
             object.__setattr__(self, name, check_int(name, getattr(self, name)))
         policies.check_network(self.hidden, self.activation)

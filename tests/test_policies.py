@@ -96,7 +96,8 @@ def test_parameters_flatten_into_one_vector_and_back(hidden):
 
 
 @pytest.mark.parametrize("hidden, activation, match", [
-    ((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((2, -1), "elu", "hidden")])
+    ((5,), "nope", "activation"), ((0,), "elu", "hidden"), ((2, -1), "elu", "hidden"),
+    (5, "elu", "hidden: must be a tuple of positive layer sizes"), ("5", "elu", "hidden")])
 def test_bad_network_settings(hidden, activation, match):
     with pytest.raises(ValueError, match=match):
         policies.check_network(hidden, activation)

@@ -31,6 +31,7 @@ from jaxpg.train_config import OPTIMIZERS, steps_on_gradients
     ("discount", [0.9, 0.95], r"discount: must be a number \(one value; a sweep's grid takes"),
     ("entropy_coef", np.array([0.0]), "entropy_coef: must be a number"),
     ("optimizer", "lbfgs", "optimizer: cannot train with 'lbfgs'"),
+    ("hidden", 5, "hidden: must be a tuple of positive layer sizes"),
 ])
 def test_bad_config_is_rejected_before_compiling(field, value, match):
     with pytest.raises(ValueError, match=f"^{match}"):
