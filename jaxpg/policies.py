@@ -57,9 +57,8 @@ def check_network(hidden: Sequence[int], activation: str) -> None:
     check_choice("activation", activation, ACTIVATIONS)
     if not isinstance(hidden, tuple | list) or any(
             isinstance(h, bool) or not isinstance(h, int | np.integer) or h < 1 for h in hidden):
-        got = tuple(hidden) if isinstance(hidden, tuple | list) else repr(hidden)
         raise ValueError(f"hidden: must be a tuple of positive layer sizes (none: a linear "
-                         f"policy), got {got}")
+                         f"policy), got {hidden!r}")
 
 
 class PolicyNetwork(nn.Module):
