@@ -5,9 +5,22 @@ Statistical Precipice" (NeurIPS 2021), as their rliable library computes them, w
 numpy and scipy alone.
 
 Scores are `[R]` (one score per run) or `[R, T]` (runs by tasks, e.g. physics settings). With tasks,
-an aggregate is taken over all `R * T` scores together, and the bootstrap resamples runs within
-each task (a stratified bootstrap). Every bootstrap is seeded, so a report is reproducible, and
-vectorised: the resamples are drawn and reduced as one array, in chunks that bound the memory.
+an aggregate is taken over all `R * T` scores together, and the bootstrap resamples runs in one of
+two ways, chosen by `paired`:
+
+- `paired=False`, the default: each task draws its own runs (rliable's stratified bootstrap). It
+  holds where each task's runs are independent of the other tasks' (each task trained its own).
+- `paired=True`: a resample draws run indices once and takes those whole rows in every task and
+  in every table compared (`improvement_ci`'s x and y, `improvement_matrix`'s settings): row r is
+  one run (one seed) throughout. Use it where the same runs play every task, as a `robustness`
+  table's policies play every physics setting: a policy's scores rise and fall together over the
+  settings, and resampling each setting on its own, as if they were independent, narrows the
+  interval several times over. It holds for independent tasks too, at about the stratified
+  width, but needs the same runs in every table.
+
+`iqm_curve` always resamples whole runs (their curves). Every bootstrap is seeded, so a report is
+reproducible, and vectorised: the resamples are drawn and reduced as one array, in chunks that
+bound the memory.
 
 Intervals are percentile intervals: the `(1 - confidence) / 2` and `(1 + confidence) / 2`
 quantiles of the statistic over the resamples (linear interpolation, as `np.percentile`).
@@ -105,29 +118,34 @@ def bootstrap_ci(
     confidence: float = 0.95,
     reps: int = 2000,
     seed: int = 0,
+    paired: bool = False,
 ) -> tuple[float, float]:
     """A percentile bootstrap confidence interval of an aggregate of the scores.
 
     Args:
-      scores: `[R]` scores, or `[R, T]`: runs are then resampled within each task and the
-        statistic is taken over all `R * T` resampled scores together.
+      scores: `[R]` scores, or `[R, T]`: the statistic is then taken over all `R * T` resampled
+        scores together.
       statistic: "iqm", "mean", "median", or a function `f(scores, axis)` reducing `axis` of a
         float array as `np.mean` does; it is called once per chunk of resamples with a
         `[B, R * T]` array and `axis=-1`, and returns `[B]`.
       confidence: the interval's coverage, in (0, 1).
       reps: how many resamples.
       seed: seeds the resampling, so the same call gives the same interval.
+      paired: False (the default) draws each task's runs on its own (stratified), for tasks whose
+        runs are independent; True draws whole rows, for `[R, T]` scores whose row r is one run in
+        every task (a `robustness` table). `[R]` scores are resampled alike either way.
 
     Returns:
       (low, high) floats.
 
     Raises:
       ValueError: for scores that are empty or not finite, fewer than 2 runs, a `confidence`
-        outside (0, 1), a `reps` below 1, a negative `seed` or an unknown `statistic`.
+        outside (0, 1), a `reps` below 1, a negative `seed`, an unknown `statistic` or a
+        `paired` that is not a bool.
     """
     reduce = _statistic(statistic)
     scores = _check_interval_args(scores, confidence, reps)
-    replicates = _replicates(scores, _aggregate(reduce), reps, _rng(seed))
+    replicates = _replicates(scores, _aggregate(reduce), reps, _rng(seed), _check_paired(paired))
     return _interval(replicates, confidence)
 
 
@@ -152,11 +170,14 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
 
 
 def improvement_ci(
-    x: np.ndarray, y: np.ndarray, confidence: float = 0.95, reps: int = 2000, seed: int = 0
+    x: np.ndarray,
+    y: np.ndarray,
+    confidence: float = 0.95,
+    reps: int = 2000,
+    seed: int = 0,
+    paired: bool = False,
 ) -> tuple[float, float]:
     """A percentile bootstrap confidence interval of `probability_of_improvement(x, y)`.
-
-    The runs of x and of y are resampled independently, within each task.
 
     Args:
       x: `[n]` or `[n, T]` scores of one setting, n >= 2.
@@ -164,18 +185,28 @@ def improvement_ci(
       confidence: the interval's coverage, in (0, 1).
       reps: how many resamples.
       seed: seeds the resampling.
+      paired: False (the default) resamples the runs of x and of y independently, within each
+        task (stratified); True draws run indices once per resample and takes those whole rows of
+        x and of y, for x and y of one shape whose runs play every task (`robustness` tables).
+        Row r of x and of y may be one seed (then drawn together, as it should be) or two
+        independent runs.
 
     Returns:
       (low, high) floats.
+
+    Raises:
+      ValueError: as `bootstrap_ci`'s, naming x or y, for x and y with other tasks, and with
+        `paired`, for x and y of other shapes.
     """
     x, y = _check_pair(x, y)
     _check_interval_args(x, confidence, reps, name="x")
     _check_interval_args(y, confidence, reps, name="y")
-    rng = _rng(seed)
+    rng_x, rng_y = _generators(seed, paired, {"x": x, "y": y})
     # Resampling the scores' codes resamples the scores; P(X > Y) needs only their order.
     x_codes, y_codes, distinct = _codes(x, y)
     replicates = np.concatenate([
-        _improvement(_resample(x_codes, rng, count), _resample(y_codes, rng, count), distinct)
+        _improvement(_resample(x_codes, rng_x, count, paired),
+                     _resample(y_codes, rng_y, count, paired), distinct)
         for count in _chunk_counts(reps, x.size + y.size)
     ])
     return _interval(replicates, confidence)
@@ -190,7 +221,11 @@ class ImprovementMatrix(NamedTuple):
 
 
 def improvement_matrix(
-    scores: Sequence[np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
+    scores: Sequence[np.ndarray],
+    confidence: float = 0.95,
+    reps: int = 2000,
+    seed: int = 0,
+    paired: bool = False,
 ) -> ImprovementMatrix:
     """`probability_of_improvement` and `improvement_ci` of every setting over every other.
 
@@ -198,21 +233,28 @@ def improvement_matrix(
     interval of (y, x) is (1 - high, 1 - low) of (x, y).
 
     Args:
-      scores: G arrays of `[n_g]` or `[n_g, T]` scores, one per setting (the runs may differ).
+      scores: G arrays of `[n_g]` or `[n_g, T]` scores, one per setting (the runs may differ
+        unless `paired`).
       confidence: the intervals' coverage, in (0, 1).
       reps: resamples per pair.
       seed: seeds the resampling of every pair.
+      paired: False (the default) resamples each setting's runs independently, within each task;
+        True draws the same whole rows of every setting, as `improvement_ci(paired=True)`, for
+        settings of one shape whose row r is one run (one seed) throughout.
 
     Returns:
       `ImprovementMatrix` of `[G, G]` arrays.
     """
     scores = _check_settings(scores)
+    if _check_paired(paired):
+        _check_same_runs({f"scores[{g}]": s for g, s in enumerate(scores)})
     size = len(scores)
     probability, low, high = (np.full((size, size), 0.5) for _ in range(3))
     for i in range(size):
         for j in range(i + 1, size):
             probability[i, j] = probability_of_improvement(scores[i], scores[j])
-            low[i, j], high[i, j] = improvement_ci(scores[i], scores[j], confidence, reps, seed)
+            low[i, j], high[i, j] = improvement_ci(
+                scores[i], scores[j], confidence, reps, seed, paired)
             probability[j, i], low[j, i], high[j, i] = (
                 1 - probability[i, j], 1 - high[i, j], 1 - low[i, j])
     return ImprovementMatrix(probability, low, high)
@@ -236,16 +278,19 @@ def performance_profile(
     confidence: float = 0.95,
     reps: int = 2000,
     seed: int = 0,
+    paired: bool = False,
 ) -> Band:
     """The fraction of runs scoring above tau, for each tau, with bootstrap confidence bands.
 
     Args:
-      scores: `[R]` or `[R, T]` scores, R >= 2; with tasks, the fraction of all `R * T` scores
-        (runs resampled within each task).
+      scores: `[R]` or `[R, T]` scores, R >= 2; with tasks, the fraction of all `R * T` scores.
       taus: `[P]` thresholds; by default 101 evenly spaced from the lowest score to the highest.
       confidence: the bands' coverage, in (0, 1).
       reps: how many resamples.
       seed: seeds the resampling.
+      paired: False (the default) draws each task's runs on its own (stratified), for tasks whose
+        runs are independent; True draws whole rows, for `[R, T]` scores whose row r is one run in
+        every task (a `robustness` table). `[R]` scores are resampled alike either way.
 
     Returns:
       `Band` over the `[P]` taus: the fraction of scores strictly above each, and its interval.
@@ -262,7 +307,8 @@ def performance_profile(
         # One threshold at a time keeps memory at one [B, R * T] comparison.
         return np.stack([(flat > tau).mean(axis=-1) for tau in taus], axis=-1)
 
-    replicates = _replicates(scores, lambda sample: above(_flat(sample)), reps, _rng(seed))
+    replicates = _replicates(scores, lambda sample: above(_flat(sample)), reps, _rng(seed),
+                             _check_paired(paired))
     return Band(taus, above(scores.ravel()), *_interval(replicates, confidence))
 
 
@@ -323,24 +369,32 @@ class SeedsEstimate(NamedTuple):
 
 
 def seeds_needed(
-    scores: Sequence[np.ndarray], confidence: float = 0.95, reps: int = 2000, seed: int = 0
+    scores: Sequence[np.ndarray],
+    confidence: float = 0.95,
+    reps: int = 2000,
+    seed: int = 0,
+    paired: bool = False,
 ) -> SeedsEstimate:
     """Estimates the seeds per setting at which the two best settings' IQMs would differ clearly.
 
-    Method: the two settings of highest IQM are resampled independently, and d = IQM(best) -
-    IQM(second) is bootstrapped. Assuming the spread of a setting's IQM over resamples shrinks as
-    1/sqrt(runs), with n' runs each the bootstrap difference would be
-    `d + (sqrt(n_best) e_best - sqrt(n_second) e_second) / sqrt(n')`, where e are the resamples'
-    deviations from their IQM. Its lower percentile bound is `d + q / sqrt(n')`, with q the same
-    percentile of the numerator, so it exceeds 0 from `n' = floor((q / d)^2) + 1` on. With equal
-    runs n this is `n (w / d)^2` for w the current interval's lower half-width: the interval
-    scaled by sqrt(n / n'). It is a guide, not a promise: a new sweep gives another d.
+    Method: the two settings of highest IQM are resampled (independently, or at the same run
+    indices where `paired`), and d = IQM(best) - IQM(second) is bootstrapped. Assuming the spread
+    of a setting's IQM over resamples shrinks as 1/sqrt(runs), with n' runs each the bootstrap
+    difference would be `d + (sqrt(n_best) e_best - sqrt(n_second) e_second) / sqrt(n')`, where e
+    are the resamples' deviations from their IQM. Its lower percentile bound is
+    `d + q / sqrt(n')`, with q the same percentile of the numerator, so it exceeds 0 from
+    `n' = floor((q / d)^2) + 1` on. With equal runs n this is `n (w / d)^2` for w the current
+    interval's lower half-width: the interval scaled by sqrt(n / n'). It is a guide, not a
+    promise: a new sweep gives another d.
 
     Args:
       scores: G >= 2 arrays of `[n_g]` or `[n_g, T]` scores, one per setting, n_g >= 2.
       confidence: the interval's coverage, in (0, 1).
       reps: how many resamples.
       seed: seeds the resampling.
+      paired: False (the default) resamples each setting's runs independently, within each task;
+        True draws the same whole rows of both settings, as `improvement_ci(paired=True)`, for
+        settings of one shape whose row r is one run (one seed) throughout.
 
     Returns:
       `SeedsEstimate`; `seeds` is at least 2, or None when the two IQMs are equal.
@@ -353,10 +407,10 @@ def seeds_needed(
     estimates = np.array([iqm(s) for s in scores])
     second, best = np.argsort(estimates, kind="stable")[-2:]
     difference = float(estimates[best] - estimates[second])
-    rng = _rng(seed)
+    rngs = _generators(seed, paired, {f"scores[{g}]": s for g, s in enumerate(scores)})
     # How far each resample's IQM falls from the setting's IQM: [reps] per setting.
-    deviations = [_replicates(scores[g], _aggregate(iqm), reps, rng) - estimates[g]
-                  for g in (best, second)]
+    deviations = [_replicates(scores[g], _aggregate(iqm), reps, rng, paired) - estimates[g]
+                  for g, rng in zip((best, second), rngs)]
     low, high = _interval(difference + deviations[0] - deviations[1], confidence)
     per_run = sum(sign * math.sqrt(scores[g].shape[0]) * deviation
                   for sign, g, deviation in zip((1, -1), (best, second), deviations))
@@ -383,7 +437,7 @@ def _resample(
     `[count, R, T]`.
 
     By default each column (task) draws its own runs; with `whole_rows`, a drawn run brings its
-    whole row (its curve over iterations).
+    whole row (its scores in every task, or its curve over iterations).
     """
     runs = scores.shape[0]
     if whole_rows or scores.ndim == 1:
@@ -492,6 +546,37 @@ def _check_interval_args(
 def _rng(seed: int) -> np.random.Generator:
     """The generator of a bootstrap; a ValueError unless `seed` is a non-negative integer."""
     return np.random.default_rng(check_int("seed", seed, 0))
+
+
+def _generators(
+    seed: int, paired: bool, tables: dict[str, np.ndarray]
+) -> tuple[np.random.Generator, np.random.Generator]:
+    """The generators that resample two of `tables` (named by their arguments), one after the other.
+
+    Unpaired, both are one generator. Paired, the tables must have one shape, and the generators
+    are two in one state: resampling whole rows of either draws the same run indices.
+    """
+    if not _check_paired(paired):
+        rng = _rng(seed)
+        return rng, rng
+    _check_same_runs(tables)
+    return _rng(seed), _rng(seed)
+
+
+def _check_paired(paired: bool) -> bool:
+    """`paired`; a ValueError unless it is a bool."""
+    if not isinstance(paired, bool | np.bool_):
+        raise ValueError(f"paired: must be True or False, got {paired!r}")
+    return bool(paired)
+
+
+def _check_same_runs(tables: dict[str, np.ndarray]) -> None:
+    """A ValueError naming the first table, by its argument, whose shape is not the first's."""
+    (first, shape), *others = ((name, table.shape) for name, table in tables.items())
+    for name, other in others:
+        if other != shape:
+            raise ValueError(f"{name}: paired with {first}, expected its shape {shape} (the same "
+                             f"runs and tasks), got {other}")
 
 
 def _check_pair(x: npt.ArrayLike, y: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
