@@ -1,22 +1,22 @@
-"""Gymnasium `Env` and `VectorEnv` of jaxpg's CartPole, stepped in numpy.
+"""Gymnasium `Env` and `VectorEnv` of jaxpg's CartPole, stepped in numpy float64 as Gymnasium's.
 
 After `register()`, `gymnasium.make("jaxpg/CartPole-v1")` and
 `gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=N)` (also `-v0`) behave as Gymnasium's own
 `CartPole-v1` and its `CartPoleVectorEnv`: the same spaces, float32 observations, rewards,
-termination, time limits and next-step autoreset, and the same initial states for the same seed
-(drawn as Gymnasium draws them, then rounded to jaxpg's float dtype).
+termination, time limits and next-step autoreset, the same initial states for the same seed, and
+the same states after each step.
 
-The dynamics are jaxpg's, not Gymnasium's: `cartpole.step` in jaxpg's float dtype (float32, or
-float64 under `jax_enable_x64`), its float32 sine and cosine included. The adapters run the
-pieces of `cartpole.step` (`cartpole.accelerations`, `cartpole.integrate`,
-`cartpole.reduce_angle`, `cartpole.sincos_polynomials`; `cartpole.is_terminated`'s comparisons)
-on numpy values, one rounding per operation. A step equals the compiled `cartpole.step` to its
-last bit, which XLA rounds otherwise now and then: it fuses a multiplication and an addition into
-one rounding, and divides by a number through its reciprocal (the tests bound the difference).
-One environment steps as numpy scalars and N as numpy arrays, without JAX's dispatch per call.
+As Gymnasium's, the adapters hold their state in float64 and step in float64, whatever JAX's
+`jax_enable_x64`. They run the pieces of `cartpole.step` (`cartpole.accelerations`,
+`cartpole.integrate`, `cartpole.is_terminated`'s comparisons) on numpy float64 values, with
+numpy's sine and cosine: Gymnasium's operations in Gymnasium's order, one rounding each, so a step
+equals Gymnasium's to its last bit. The compiled `cartpole.step` agrees with them to about 1e-13
+under `jax_enable_x64` (XLA fuses a multiplication and an addition into one rounding now and then,
+and divides by a number through its reciprocal), and to float32's precision without it. One
+environment steps as numpy scalars and N as numpy arrays, without JAX's dispatch per call.
 """
 
-from typing import Any, NamedTuple, TypeVar
+from typing import Any, NamedTuple
 
 import gymnasium
 import jax
@@ -31,9 +31,6 @@ from jaxpg import cartpole, render
 from jaxpg.cartpole import CartPoleParams
 from jaxpg.types import HostArray
 from jaxpg.validation import check_int
-
-# Numpy values that the adapters step: scalars for one environment, arrays for N.
-_Numbers = TypeVar("_Numbers", np.ndarray, np.floating)
 
 
 def observation_space(env_params: CartPoleParams) -> spaces.Box:
@@ -55,10 +52,18 @@ def _make_params(env_params: CartPoleParams | None, sutton_barto_reward: bool) -
 
 
 def _host_params(env_params: CartPoleParams) -> CartPoleParams:
-    """`env_params` with any JAX array among its values as numpy: the same dtypes, so the same
-    promotions (a Python number stays one, as weakly typed in numpy as in JAX)."""
-    return jax.tree.map(lambda value: np.asarray(value) if isinstance(value, jax.Array) else value,
-                        env_params)
+    """`env_params` with each number a Python float (float64), as Gymnasium's CartPoleEnv holds
+    its physics.
+
+    Raises:
+      ValueError: for a field that holds more than one number (the adapters step one physics).
+    """
+    for path, value in jax.tree_util.tree_leaves_with_path(env_params):
+        if np.ndim(value):
+            name = jax.tree_util.keystr(path, simple=True)
+            raise ValueError(f"env_params: expected one number per field, got {name} of shape "
+                             f"{np.shape(value)}")
+    return jax.tree.map(float, env_params)
 
 
 def _check_render_mode(render_mode: str | None, metadata: dict[str, Any]) -> None:
@@ -70,70 +75,33 @@ def _check_render_mode(render_mode: str | None, metadata: dict[str, Any]) -> Non
         )
 
 
-def _float_dtype(values: HostArray | None = None) -> np.dtype:
-    """The dtype of a state made of `values`, as `CartPoleState.from_array` makes it: their float
-    dtype (canonical: float32 without `jax_enable_x64`), or the default float dtype."""
-    dtype = (values.dtype if values is not None and np.issubdtype(values.dtype, np.floating)
-             else float)
-    dtype = np.dtype(jax.dtypes.canonicalize_dtype(dtype))
-    if dtype not in (np.float32, np.float64):
-        raise ValueError(f"state: expected float32 or float64 values, got {dtype}")
-    return dtype
-
-
 def _initial_values(np_random: np.random.Generator, env_params: CartPoleParams,
                     options: dict[str, Any] | None, shape: tuple[int, ...]
                     ) -> tuple[HostArray, tuple[float, float]]:
-    """Initial states `shape` (`(4,)` or `(4, N)`): uniform within the reset bounds, which
-    `options` ("low", "high") may set, drawn as Gymnasium's CartPole draws them; and the bounds
-    (low, high)."""
-    low, high = utils.maybe_parse_reset_bounds(
-        options, float(env_params.reset_low), float(env_params.reset_high))
-    return np_random.uniform(low=low, high=high, size=shape).astype(_float_dtype()), (low, high)
+    """Initial float64 states `shape` (`(4,)` or `(4, N)`): uniform within the reset bounds,
+    which `options` ("low", "high") may set, drawn as Gymnasium's CartPole draws them; and the
+    bounds (low, high)."""
+    low, high = utils.maybe_parse_reset_bounds(options, env_params.reset_low,
+                                               env_params.reset_high)
+    return np_random.uniform(low=low, high=high, size=shape), (low, high)
 
 
-def _sincos(theta: _Numbers, small: bool | np.bool_) -> tuple[_Numbers, _Numbers]:
-    """`cartpole.sincos` in numpy: the same float32 arithmetic, or numpy's float64 sine and cosine
-    (which are XLA's on CPU, both being the C library's; the tests check it). `small`: whether
-    every |theta| <= `_SMALL_ANGLE`, as while an episode lasts."""
-    if theta.dtype is not _FLOAT32:
-        return np.sin(theta), np.cos(theta)
-    if small:
-        return cartpole.sincos_polynomials(theta)
-    quarter_turns = np.round(theta * cartpole.QUARTER_TURN_PER_RADIAN)
-    sin_r, cos_r = cartpole.sincos_polynomials(cartpole.reduce_angle(theta, quarter_turns))
-    quadrant = quarter_turns.astype(np.int32) & 3
-    return (np.choose(quadrant, (sin_r, cos_r, -sin_r, -cos_r)),
-            np.choose(quadrant, (cos_r, -sin_r, -cos_r, sin_r)))
-
-
-# Up to it, an angle rounds to no quarter turn (0.75 * 2 / pi < 0.5) and its reduction subtracts
-# zeros: the polynomials of the angle itself give the same sine and cosine, but for the sign of a
-# zero sine, which no step's result shows (the force, never zero, is added to it).
-_SMALL_ANGLE = 0.75
-_FLOAT32 = np.dtype(np.float32)
-
-
-def _step_one(values: tuple[np.floating, ...], action: int | np.integer, env_params: CartPoleParams
-              ) -> tuple[tuple[np.floating, ...], bool]:
-    """`cartpole.step` of one environment: (values, terminated), values as numpy scalars
-    (x, x_dot, theta, theta_dot) of the state's dtype."""
+def _step_one(values: tuple[np.float64, ...], action: int | np.integer, env_params: CartPoleParams
+              ) -> tuple[tuple[np.float64, ...], bool]:
+    """Gymnasium's `CartPoleEnv.step` of one environment: (values, terminated), values as numpy
+    float64 scalars (x, x_dot, theta, theta_dot). `env_params`: from `_host_params`."""
     x, x_dot, theta, theta_dot = values
     p = env_params
     force = p.force_mag if action == 1 else -p.force_mag
-    sincos = _sincos(theta, abs(theta) <= _SMALL_ANGLE)
-    xacc, thetaacc = cartpole.accelerations(theta_dot, force, *sincos, p)
+    xacc, thetaacc = cartpole.accelerations(theta_dot, force, np.sin(theta), np.cos(theta), p)
     stepped = cartpole.integrate(x, x_dot, theta, theta_dot, xacc, thetaacc, p)
-    terminated = bool(cartpole.is_terminated(stepped[0], stepped[2], p))
-    if stepped[0].dtype is not x.dtype:  # (float64 values of the physics, a float32 state)
-        stepped = tuple(np.asarray(stepped, x.dtype))
-    return stepped, terminated
+    return stepped, bool(cartpole.is_terminated(stepped[0], stepped[2], p))
 
 
 class _Physics(NamedTuple):
-    """What a step of N environments reads of their `CartPoleParams`, for values of one dtype:
-    each number as JAX would meet it beside such arrays, as a 0-d array (by which numpy multiplies
-    an array sooner than by a Python number), and the forces and thresholds as arrays."""
+    """What a step of N environments reads of their `CartPoleParams`: each number as a float64
+    0-d array (by which numpy multiplies an array sooner than by a Python number), and the forces
+    and thresholds as arrays."""
 
     gravity: np.ndarray  # []
     masspole: np.ndarray  # []
@@ -146,31 +114,25 @@ class _Physics(NamedTuple):
     limits: np.ndarray  # [2, 1]: x_threshold, theta_threshold_radians
 
 
-def _physics(env_params: CartPoleParams, dtype: np.dtype) -> _Physics:
-    """The `_Physics` of `env_params` (`_host_params`) for values of `dtype`."""
+def _physics(env_params: CartPoleParams) -> _Physics:
+    """The `_Physics` of `env_params` (`_host_params`)."""
     p = env_params
-
-    def beside(value: Any) -> np.ndarray:
-        """`value` as a 0-d array, of the dtype JAX gives it beside an array of `dtype`."""
-        # (a Python number, weakly typed, takes the arrays' dtype)
-        return np.asarray(value, np.result_type(value, dtype))
-
-    return _Physics(beside(p.gravity), beside(p.masspole), beside(p.length),
-                    beside(p.polemass_length), beside(p.total_mass), beside(p.tau), p.integrator,
-                    forces=np.stack([beside(-p.force_mag), beside(p.force_mag)]),
-                    limits=np.stack([beside(p.x_threshold),
-                                     beside(p.theta_threshold_radians)])[:, None])
+    return _Physics(np.asarray(p.gravity), np.asarray(p.masspole), np.asarray(p.length),
+                    np.asarray(p.polemass_length), np.asarray(p.total_mass), np.asarray(p.tau),
+                    p.integrator, forces=np.array([-p.force_mag, p.force_mag]),
+                    limits=np.array([[p.x_threshold], [p.theta_threshold_radians]]))
 
 
 def _step_many(values: HostArray, indices: HostArray, physics: _Physics
                ) -> tuple[HostArray, HostArray]:
-    """`cartpole.step` of N environments, values `[4, N]` (rows x, x_dot, theta, theta_dot):
-    (values `[4, N]`, terminated `[N]`). `indices`: the actions, 0 or 1; `physics`: from
-    `_physics`. The four rows are integrated at once, by `cartpole.integrate`'s operations."""
+    """Gymnasium's `CartPoleVectorEnv.step` of N environments without its autoreset, float64
+    values `[4, N]` (rows x, x_dot, theta, theta_dot): (values `[4, N]`, terminated `[N]`).
+    `indices`: the actions, 0 or 1; `physics`: from `_physics`. The four rows are integrated at
+    once, by `cartpole.integrate`'s operations."""
     x, x_dot, theta, theta_dot = values
     p = physics
-    sincos = _sincos(theta, (abs(theta) <= _SMALL_ANGLE).all())
-    xacc, thetaacc = cartpole.accelerations(theta_dot, p.forces[indices], *sincos, p)
+    xacc, thetaacc = cartpole.accelerations(theta_dot, p.forces[indices], np.sin(theta),
+                                            np.cos(theta), p)
     if p.integrator == "euler":
         stepped = values + p.tau * np.stack((x_dot, xacc, theta_dot, thetaacc))
     else:
@@ -179,11 +141,11 @@ def _step_many(values: HostArray, indices: HostArray, physics: _Physics
         stepped = np.stack((positions[0], velocities[0], positions[1], velocities[1]))
     # `cartpole.is_terminated` of x and theta at once (|v| > t is v < -t or v > t).
     terminated = (abs(stepped[::2]) > p.limits).any(axis=0)
-    return stepped.astype(values.dtype, copy=False), terminated
+    return stepped, terminated
 
 
 class CartPoleEnv(gymnasium.Env):
-    """One CartPole, stepped as `jaxpg.cartpole.step`; a drop-in for Gymnasium's `CartPoleEnv`.
+    """One CartPole, stepped in float64 as Gymnasium's `CartPoleEnv`, for which it is a drop-in.
 
     As Gymnasium's, it never truncates by itself: `gymnasium.make` adds the `TimeLimit` wrapper
     (500 steps for v1, 200 for v0), so `env_params.max_steps` plays no part here. Stepping after
@@ -210,24 +172,25 @@ class CartPoleEnv(gymnasium.Env):
         self.render_mode = render_mode
         self.action_space = spaces.Discrete(2)
         self.observation_space = observation_space(self.env_params)
-        # x, x_dot, theta, theta_dot: numpy scalars of the state's dtype
-        self._values: tuple[np.floating, ...] | None = None
+        # x, x_dot, theta, theta_dot: numpy float64 scalars
+        self._values: tuple[np.float64, ...] | None = None
         self._steps_beyond_terminated: int | None = None
 
     @property
     def state(self) -> HostArray | None:
         """The physical state `[4]` (x, x_dot, theta, theta_dot), float64; None before reset.
 
-        Settable, as Gymnasium's `CartPoleEnv.state`, e.g. to start from a chosen state.
+        Settable, as Gymnasium's `CartPoleEnv.state`, e.g. to start from a chosen state; the
+        values are kept as float64.
         """
-        return None if self._values is None else np.array(self._values, np.float64)
+        return None if self._values is None else np.array(self._values)
 
     @state.setter
     def state(self, values: npt.ArrayLike) -> None:
-        values = np.asarray(values)
+        values = np.asarray(values, np.float64)
         if values.shape != (4,):
             raise ValueError(f"state: expected shape (4,), got {values.shape}")
-        self._values = tuple(values.astype(_float_dtype(values)))
+        self._values = tuple(values)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[HostArray, dict[str, Any]]:
@@ -287,7 +250,7 @@ class CartPoleEnv(gymnasium.Env):
 
 
 class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
-    """N CartPoles stepped together as `jaxpg.cartpole.step`; as Gymnasium's `CartPoleVectorEnv`.
+    """N CartPoles stepped together in float64, as Gymnasium's `CartPoleVectorEnv`.
 
     Next-step autoreset, as `rollout.autoreset_step`: the step after an environment terminates or
     truncates ignores its action and resets it, with reward 0 and terminated and truncated False.
@@ -329,7 +292,7 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
             cartpole.check_params(env_params)
         self.env_params = env_params
         self._params = _host_params(env_params)
-        self._physics: _Physics | None = None  # `_physics` for the values' dtype
+        self._physics = _physics(self._params)
         self.num_envs = num_envs
         self.max_episode_steps = int(env_params.max_steps)
         self.render_mode = render_mode
@@ -337,7 +300,7 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.single_observation_space = observation_space(env_params)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
-        self._values: HostArray | None = None  # [4, N] of the state's dtype
+        self._values: HostArray | None = None  # [4, N] float64
         self._time: HostArray | None = None  # [N] steps taken in each episode
         self._prev_done: HostArray | None = None  # [N] whether each resets at its next step
         self._bounds: tuple[float, float] | None = None  # the reset bounds of the last reset
@@ -346,23 +309,19 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
     def state(self) -> HostArray | None:
         """The physical states `[4, N]` (rows x, x_dot, theta, theta_dot), float64, as Gymnasium's.
 
-        Settable; setting it keeps each environment's step count and pending autoreset.
+        Settable, the values kept as float64; setting it keeps each environment's step count and
+        pending autoreset.
         """
-        return None if self._values is None else self._values.astype(np.float64)
+        return None if self._values is None else self._values.copy()
 
     @state.setter
     def state(self, values: npt.ArrayLike) -> None:
         if self._values is None:
             raise gymnasium.error.ResetNeeded("call reset() before setting the state")
-        values = np.asarray(values)
+        values = np.array(values, np.float64)
         if values.shape != (4, self.num_envs):
             raise ValueError(f"state: expected shape (4, {self.num_envs}), got {values.shape}")
-        self._set_values(values.astype(_float_dtype(values)))
-
-    def _set_values(self, values: HostArray) -> None:
-        """Sets the states `[4, N]` and the physics for their dtype."""
         self._values = values
-        self._physics = _physics(self._params, values.dtype)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
               ) -> tuple[HostArray, dict[str, Any]]:
@@ -372,12 +331,11 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
           (obs float32 `[N, 4]`, {}).
         """
         super().reset(seed=seed)
-        values, self._bounds = _initial_values(
+        self._values, self._bounds = _initial_values(
             self.np_random, self._params, options, (4, self.num_envs))
-        self._set_values(values)
         self._time = np.zeros(self.num_envs, np.int32)
         self._prev_done = np.zeros(self.num_envs, bool)
-        return values.T.astype(np.float32), {}
+        return self._values.T.astype(np.float32), {}
 
     def step(self, actions: npt.ArrayLike
              ) -> tuple[HostArray, HostArray, HostArray, HostArray, dict[str, Any]]:
@@ -405,8 +363,7 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
         if self._values is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
         # (`reset` sets them all with the values.)
-        assert self._physics is not None and self._bounds is not None
-        assert self._time is not None and self._prev_done is not None
+        assert self._bounds is not None and self._time is not None and self._prev_done is not None
         values, terminated = _step_many(self._values, indices, self._physics)
         time = self._time + 1
         truncated = time >= self.max_episode_steps
