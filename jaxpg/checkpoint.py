@@ -6,7 +6,13 @@ holding a msgpack map written by `flax.serialization.msgpack_serialize`:
 
     format          "jaxpg-checkpoint": marks the file as a jaxpg checkpoint
     format_version  an integer, bumped when the layout changes; a reader refuses newer versions:
-                    1 for one run, 2 for a sweep's runs (version 1 has no `runs`)
+                    3 (earlier ones below)
+    sha256          the SHA-256 digest of `content`, as 64 lowercase hex digits
+    content         the msgpack bytes of a map of the fields below, checked against `sha256`
+                    before they are read: a flipped bit anywhere in the file is refused
+
+The content's fields:
+
     jaxpg_version   the `jaxpg.__version__` that wrote the file, e.g. "0.1.0"
     config          the `TrainConfig` as a map of its fields; `hidden` is a list, `env` is
                     either a preset name ("CartPole-v1") or a map of `CartPoleParams` fields,
@@ -20,17 +26,25 @@ holding a msgpack map written by `flax.serialization.msgpack_serialize`:
     metrics         nil, or a map of `Metrics` fields to float32 or float64 arrays (`[I]`
                     per-iteration statistics), `extra` a map of the loss's own metrics
     runs            a sweep's only: {"grid": its G settings (maps of field to number), "seeds":
-                    its S seeds}; every array of `policy_params` and `metrics` then holds every
-                    run's, `[G, S, ...]`, run (g, s) being seed s under setting g
+                    its S seeds, in [0, 2**32)}; every array of `policy_params` and `metrics` then
+                    holds every run's, `[G, S, ...]`, run (g, s) being seed s under setting g
 
-Any msgpack reader can open the file; flax's `msgpack_restore` turns the arrays back into numpy.
+Versions 1 (one run) and 2 (a sweep's runs, with `runs`), written by earlier jaxpg, hold the
+content's fields in the file's map itself, beside `format` and `format_version`, with no checksum;
+they load unchecked.
+
+Any msgpack reader can open the file, then its content; flax's `msgpack_restore` turns the arrays
+back into numpy.
 
 It is written with `atomic_files.atomic_write`: a crash mid-write leaves the previous file intact.
 """
 
 import dataclasses
 import functools
+import hashlib
+import os
 import pathlib
+import warnings
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict, cast
 
@@ -40,14 +54,19 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from jaxpg import atomic_files, cartpole, iteration, losses, policies, train_config
+from jaxpg import atomic_files, cartpole, iteration, losses, policies, safe_read, train_config
 from jaxpg.types import Params
+from jaxpg.validation import check_int, check_number
 
 if TYPE_CHECKING:
     from jaxpg import sweeps
 
 FORMAT = "jaxpg-checkpoint"
-FORMAT_VERSION = 2  # the newest this reads; one run's file is still written as version 1
+FORMAT_VERSION = 3  # the version written, and the newest this reads
+_CHECKED_VERSION = 3  # the first version whose content is checked against its sha256
+# A bound on the file read: above any sweep's, whose 1,000 seeds x 100 settings x 10,000
+# iterations of 6 float32 metrics take 2.4e10 bytes.
+_MAX_BYTES = 2**36
 FILENAME = "policy.msgpack"
 SWEEP_FILENAME = "policies.msgpack"
 
@@ -84,8 +103,9 @@ def save(
     """Saves a policy with its `TrainConfig` (and optionally its metrics) as one file, atomically.
 
     Args:
-      path: the file to write, or an existing directory to write `policy.msgpack` in (for a
-        sweep, `policies.msgpack`). Missing parent directories of a file are created.
+      path: the file to write, or a directory to write `policy.msgpack` in (for a sweep,
+        `policies.msgpack`): an existing one, or a path ending in a separator (`"runs/best/"`).
+        Missing directories are created.
       policy_params: the policy network's parameters (`TrainResult.policy_params` of one run).
       config: the `TrainConfig` that describes the network.
       metrics: optional `Metrics` of the run.
@@ -105,21 +125,29 @@ def save(
     if metrics is not None and not isinstance(metrics, iteration.Metrics):
         raise ValueError(f"metrics: expected a Metrics or None, got {type(metrics).__name__}")
     _check_params_match(policy_params, config, "policy_params", _grid_shape(runs))
-    path = pathlib.Path(path)
-    if path.is_dir():
-        path = path / (FILENAME if runs is None else SWEEP_FILENAME)
-    payload = {
-        "format": FORMAT,
-        "format_version": 1 if runs is None else FORMAT_VERSION,
+    path = _target(path, FILENAME if runs is None else SWEEP_FILENAME)
+    content = serialization.msgpack_serialize({
         "jaxpg_version": _jaxpg_version(),
         "config": config_to_dict(config),
         "policy_params": jax.tree.map(np.asarray, serialization.to_state_dict(policy_params)),
         "metrics": None if metrics is None else jax.tree.map(np.asarray, metrics._asdict()),
         **({} if runs is None else {"runs": runs}),
-    }
+    })
+    payload = {"format": FORMAT, "format_version": FORMAT_VERSION,
+               "sha256": hashlib.sha256(content).hexdigest(), "content": content}
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_files.atomic_write(path, serialization.msgpack_serialize(payload))
     return path
+
+
+def _target(path: str | os.PathLike[str], name: str) -> pathlib.Path:
+    """The file `save` writes: `path`, or `path/name` for a directory, an existing one or one
+    named with a final separator (which `pathlib.Path` would drop)."""
+    text = os.fspath(path)
+    separators = tuple(sep for sep in (os.sep, os.altsep) if sep)
+    if text.endswith(separators) or pathlib.Path(text).is_dir():
+        return pathlib.Path(text) / name
+    return pathlib.Path(text)
 
 
 def save_sweep(
@@ -209,18 +237,28 @@ def _describe(value: Any) -> str | dict[str, str] | None:
     """
     if value is None or isinstance(value, str):
         return value
-    kind = value if callable(value) and not hasattr(value, "__dataclass_fields__") else type(value)
+    # A function or class is named itself; anything else (a module, a partial) by its type.
+    is_named = hasattr(value, "__qualname__") and not hasattr(value, "__dataclass_fields__")
+    kind = value if is_named else type(value)
     return {"object": f"{kind.__module__}.{kind.__qualname__}", "repr": repr(value)}
 
 
 def _require_objects(fields: object, objects: Mapping[str, Any]) -> None:
-    """Raises a ValueError naming a field saved as a user's object that `objects` lacks."""
+    """Raises a ValueError naming a field saved as a user's object that `objects` lacks, or gives
+    as another class or function (by qualified name)."""
     for name in _OBJECTS:
-        if isinstance(fields, dict) and isinstance(fields.get(name), dict) and (
-                objects.get(name) is None):
-            raise ValueError(
-                f"{name}: the checkpoint was trained with {fields[name].get('object')}; pass it: "
-                f"checkpoint.load(path, {name}=...)")
+        saved = fields.get(name) if isinstance(fields, dict) else None
+        if not isinstance(saved, dict):
+            continue
+        expected = saved.get("object")
+        given = objects.get(name)
+        if given is None:
+            raise ValueError(f"{name}: the checkpoint was trained with {expected}; pass it: "
+                             f"checkpoint.load(path, {name}=...)")
+        described = _describe(given)
+        got = described["object"] if isinstance(described, dict) else repr(described)
+        if got != expected:
+            raise ValueError(f"{name}: the checkpoint was trained with {expected}, got {got}")
 
 
 def config_from_dict(
@@ -285,16 +323,16 @@ def resolve(path: str | pathlib.Path) -> pathlib.Path:
 
     Returns:
       The path itself, or `DIR/policy.msgpack`, or where that is missing, a sweep's
-      `DIR/policies.msgpack`.
+      `DIR/policies.msgpack` (which `load` reads only if it is a regular file).
 
     Raises:
       FileNotFoundError: there is no such file.
     """
     path = pathlib.Path(path)
     if path.is_dir():
-        path = path / (SWEEP_FILENAME if (path / SWEEP_FILENAME).is_file()
+        path = path / (SWEEP_FILENAME if (path / SWEEP_FILENAME).exists()
                        and not (path / FILENAME).exists() else FILENAME)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"{path}: no such checkpoint file")
     return path
 
@@ -312,7 +350,8 @@ def load(
         `policies.msgpack`.
       policy, loss, optimizer: the objects that trained it where they were a user's own (a flax
         module, functions), which the checkpoint names but cannot hold: the same module class
-        with the same fields (its parameters are checked against it), and the functions.
+        with the same fields (its parameters are checked against it), and the functions, of the
+        qualified names the checkpoint holds.
 
     Returns:
       `Checkpoint(policy_params, config, version, metrics, grid, seeds)`: for a sweep's file, the
@@ -321,16 +360,18 @@ def load(
 
     Raises:
       FileNotFoundError: there is no such file.
-      ValueError: the file is truncated, not a jaxpg checkpoint, from a newer format version, or
-        holds weights or metrics that are not float32 or float64 arrays; the message names the
-        path and the field.
+      ValueError: the file is no regular file, truncated, damaged (its content does not match
+        its checksum), not a jaxpg checkpoint, from a newer format version, trained with another
+        class or function than the one given, or holds weights or metrics that are not float32
+        or float64 arrays, or seeds out of [0, 2**32); the message names the path and the field.
+
+    Warns:
+      RuntimeWarning: naming the path, where the weights of a run hold NaN or infinity (a
+        diverged run's: its policy's actions mean nothing).
     """
     path = resolve(path)
-    try:
-        payload = serialization.msgpack_restore(path.read_bytes())
-    except Exception as e:  # msgpack raises several unrelated types on bad input
-        raise ValueError(f"{path}: not a jaxpg checkpoint (unreadable msgpack: {e})") from None
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+    payload = _unpack(safe_read.read_bytes(path, _MAX_BYTES), path)
+    if payload.get("format") != FORMAT:
         raise ValueError(f"{path}: not a jaxpg checkpoint (no {FORMAT!r} format marker)")
     format_version = payload.get("format_version")
     if type(format_version) is not int or format_version < 1:  # (not a bool, an int subclass)
@@ -338,30 +379,82 @@ def load(
             f"{path}: not a jaxpg checkpoint (bad format_version {format_version!r})"
         )
     if format_version > FORMAT_VERSION:
+        writer = payload.get("jaxpg_version")  # (in the file's map up to version 2)
         raise ValueError(
             f"{path}: checkpoint format version {format_version} is newer than this jaxpg reads "
-            f"(up to {FORMAT_VERSION}); upgrade jaxpg (the file was written by jaxpg "
-            f"{payload.get('jaxpg_version')})"
-        )
+            f"(up to {FORMAT_VERSION}); upgrade jaxpg"
+            + ("" if writer is None else f" (the file was written by jaxpg {writer})"))
+    fields = _unseal(payload, path) if format_version >= _CHECKED_VERSION else payload
     objects = {"policy": policy, "loss": loss, "optimizer": optimizer}
-    _require_objects(payload.get("config"), objects)
+    _require_objects(fields.get("config"), objects)
     try:
-        version = str(payload["jaxpg_version"])
-        config = config_from_dict(payload["config"], objects)
-        runs = payload.get("runs")
-        grid = None if runs is None else [dict(setting) for setting in runs["grid"]]
-        seeds = None if runs is None else np.asarray(runs["seeds"], np.int64)
-        _check_floats(payload["policy_params"], "policy_params")
-        policy_params = jax.tree.map(jnp.asarray, payload["policy_params"])
-        _check_params_match(policy_params, config, "policy_params", _grid_shape(runs))
-        metrics = payload.get("metrics")
+        version = str(fields["jaxpg_version"])
+        config = config_from_dict(fields["config"], objects)
+        grid, seeds = _read_runs(fields.get("runs"))
+        lead = () if grid is None else (len(grid), len(cast(np.ndarray, seeds)))
+        _check_floats(fields["policy_params"], "policy_params")
+        policy_params = jax.tree.map(jnp.asarray, fields["policy_params"])
+        _check_params_match(policy_params, config, "policy_params", lead)
+        metrics = fields.get("metrics")
         if metrics is not None:
             _check_floats(metrics, "metrics")
             metrics = iteration.Metrics(**{k: jax.tree.map(jnp.asarray, v)
                                            for k, v in metrics.items()})
     except (AttributeError, KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: damaged jaxpg checkpoint ({type(e).__name__}: {e})") from None
+    _warn_if_diverged(fields["policy_params"], lead, path)
     return Checkpoint(policy_params, config, version, metrics, grid, seeds)
+
+
+def _unpack(data: bytes, path: pathlib.Path) -> dict[Any, Any]:
+    """The msgpack map of `data`; a ValueError naming `path` for anything else."""
+    try:
+        payload = serialization.msgpack_restore(data)
+    except Exception as e:  # msgpack raises several unrelated types on bad input
+        raise ValueError(f"{path}: not a jaxpg checkpoint (unreadable msgpack: {e})") from None
+    if not isinstance(payload, dict):
+        raise ValueError(f"{path}: not a jaxpg checkpoint (no msgpack map)")
+    return payload
+
+
+def _unseal(payload: dict[Any, Any], path: pathlib.Path) -> dict[Any, Any]:
+    """The content's fields of a checked version's file, once they match its checksum."""
+    content, digest = payload.get("content"), payload.get("sha256")
+    if not isinstance(content, bytes) or not isinstance(digest, str):
+        raise ValueError(f"{path}: damaged jaxpg checkpoint (its content or sha256 is missing)")
+    if hashlib.sha256(content).hexdigest() != digest:
+        raise ValueError(f"{path}: damaged jaxpg checkpoint (the content does not match its "
+                         f"sha256 checksum)")
+    return _unpack(content, path)
+
+
+def _read_runs(runs: Any) -> tuple[list[dict[str, float]] | None, np.ndarray | None]:
+    """A sweep's `runs` entry as (its G settings, its `[S]` int64 seeds); (None, None) for none.
+
+    Raises:
+      ValueError: naming the entry, for a setting's value that is not a finite number or a seed
+        out of [0, 2**32), which a sweep's seeds are.
+    """
+    if runs is None:
+        return None, None
+    grid = [{name: check_number(f"runs.grid[{g}].{name}", value)
+             for name, value in dict(setting).items()} for g, setting in enumerate(runs["grid"])]
+    seeds = np.array([check_int("runs.seeds", seed, 0, 2**32) for seed in runs["seeds"]],
+                     np.int64)
+    return grid, seeds
+
+
+def _warn_if_diverged(policy_params: dict, lead: tuple[int, ...], path: pathlib.Path) -> None:
+    """Warns, naming `path`, where the weights of a run (of `[*lead, ...]` arrays) are not all
+    finite."""
+    diverged = np.zeros(lead, bool)
+    for leaf in jax.tree.leaves(policy_params):
+        diverged |= ~np.isfinite(leaf).all(axis=tuple(range(len(lead), leaf.ndim)))
+    if diverged.any():
+        whose = "the weights" if not lead else (
+            f"the weights of {diverged.sum()} of {diverged.size} runs")
+        warnings.warn(f"{path}: {whose} hold NaN or infinity (training diverged); such a "
+                      f"policy's actions mean nothing", RuntimeWarning, stacklevel=3)
 
 
 def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:

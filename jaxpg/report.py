@@ -10,15 +10,18 @@ run's score is its held-out evaluation return where every folder has them (`eval
 
 import functools
 import json
+import os
 import pathlib
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 
-from jaxpg import atomic_files, plots, stats
+from jaxpg import atomic_files, plots, safe_read, stats
 from jaxpg.sweeps import SOLVED_WINDOW
 from jaxpg.train_config import HYPERPARAMETERS
+from jaxpg.validation import check_finite
 
 # summary.json's "format": the folders this version writes and reads.
 SWEEP_FORMAT = "jaxpg-sweep-1"
@@ -27,6 +30,13 @@ COMPARISON_FILE = "comparison.json"
 PLOT_FILES = ("aggregate_intervals.png", "performance_profiles.png", "iqm_curves.png",
               "improvement.png")
 _AGGREGATES = ("iqm", "mean", "median", "optimality_gap")
+# Bounds on what a sweep folder's files may hold: summary.json's [G, I] statistics of 100 settings x
+# 10,000 iterations take about 110 MB; one array of metrics.npz of 1,000 seeds x 100 settings x
+# 10,000 iterations of float32, 4e9 bytes.
+_MAX_SUMMARY_BYTES = 2**28
+_MAX_ARRAY_BYTES = 2**32
+# The words for the JSON values that a message does not quote.
+_JSON_TYPES = {dict: "an object", list: "an array", bool: "a boolean", type(None): "null"}
 # Iterations a curve's band is computed at, evenly spaced with the first and last: the bootstrap's
 # cost grows with them, and a plot needs no more.
 _CURVE_POINTS = 50
@@ -84,6 +94,9 @@ def setting_label(setting: dict[str, float]) -> str:
 def load_sweep(folder: str | pathlib.Path) -> Sweep:
     """Reads a folder written by `jaxpg sweep --out`.
 
+    Its files are read only where they are regular files, within `_MAX_SUMMARY_BYTES` (summary.json)
+    and `_MAX_ARRAY_BYTES` (each array of metrics.npz, judged by its header before it is read).
+
     Args:
       folder: the folder.
 
@@ -91,8 +104,11 @@ def load_sweep(folder: str | pathlib.Path) -> Sweep:
       `Sweep` with `[G, S]` scores and `[G, S, I]` curves.
 
     Raises:
-      ValueError: naming the folder, for a missing or empty folder, one written by another
-        version of jaxpg or by something else, or held-out returns of the wrong shape.
+      ValueError: naming the folder or its file, for a missing or empty folder, one written by
+        another version of jaxpg or by something else, or a file that is no regular file, is
+        larger than its bound, damaged, or holds other than a sweep's: a grid of G settings of
+        numbers (a learning rate and a discount each), finite mean returns `[G, S, I]` and,
+        optionally, held-out returns `[G, S, N]`.
     """
     path = pathlib.Path(folder)
     if not path.is_dir():
@@ -100,53 +116,112 @@ def load_sweep(folder: str | pathlib.Path) -> Sweep:
     if not any(path.iterdir()):
         raise ValueError(f"{folder}: empty; expected a folder written by jaxpg sweep --out")
     summary = _read_summary(path, folder)
-    if summary.get("format") != SWEEP_FORMAT:
-        found = "no format marker" if "format" not in summary else f"format {summary['format']!r}"
-        raise ValueError(f"{folder}: written by another version of jaxpg ({found}, this version "
-                         f"reads {SWEEP_FORMAT!r}); run the sweep again")
-    if not (path / "metrics.npz").is_file():
-        raise ValueError(
-            f"{folder}: no metrics.npz; expected a folder written by jaxpg sweep --out")
-    with np.load(path / "metrics.npz") as npz:
-        if "mean_return" not in npz or not isinstance(summary.get("grid"), list):
-            raise ValueError(f"{folder}: metrics.npz lacks mean_return or summary.json its grid; "
-                             f"run the sweep again")
-        curves = np.asarray(npz["mean_return"], dtype=np.float64)
-        settings = [{name: float(value) for name, value in setting.items()}
-                    for setting in summary["grid"]]
-        held_out = np.asarray(npz["eval_returns"], np.float64) if "eval_returns" in npz else None
+    settings = _read_grid(summary.get("grid"), path / "summary.json")
+    arrays = _read_metrics(path, folder)
+    npz = path / "metrics.npz"
+    curves, held_out = arrays["mean_return"], arrays.get("eval_returns")
+    if curves.ndim != 3 or curves.shape[0] != len(settings) or not curves.size:
+        raise ValueError(f"{npz}: mean_return of shape {list(curves.shape)}, expected [G, S, I] "
+                         f"with G = {len(settings)} (summary.json's grid) and S, I > 0")
     if held_out is None:
         window = min(SOLVED_WINDOW, curves.shape[-1])
         scores = curves[..., -window:].mean(axis=-1)
         score = f"training return: each run's mean return over its last {window} iterations"
-    elif held_out.ndim == 3 and held_out.shape[:2] == curves.shape[:2]:
+    elif held_out.ndim == 3 and held_out.shape[:2] == curves.shape[:2] and held_out.size:
         scores = held_out.mean(axis=-1)
         score = (f"held-out evaluation return: each run's mean return over its "
                  f"{held_out.shape[-1]} evaluation episodes")
     else:
-        raise ValueError(f"{folder}: eval_returns of shape {held_out.shape}, expected "
-                         f"[G, S, N] with [G, S] = {list(curves.shape[:2])}")
+        raise ValueError(f"{npz}: eval_returns of shape {list(held_out.shape)}, expected "
+                         f"[G, S, N] with [G, S] = {list(curves.shape[:2])} and N > 0")
     return Sweep(str(folder), summary["config"], settings, scores, curves, score)
 
 
+def _missing(folder: str | pathlib.Path, name: str) -> ValueError:
+    """The error for a sweep folder without its file `name`."""
+    return ValueError(f"{folder}: no {name}; expected a folder written by jaxpg sweep --out")
+
+
 def _read_summary(path: pathlib.Path, folder: str | pathlib.Path) -> dict[str, Any]:
-    """`path`'s summary.json; a ValueError naming `folder` unless it holds a sweep's config."""
+    """`path`'s summary.json (`safe_read.read_json`).
+
+    A ValueError names `folder` or the file unless it holds this version's format marker and a
+    config with a solved_return.
+    """
+    file = path / "summary.json"
     try:
-        summary = json.loads((path / "summary.json").read_text())
+        summary = safe_read.read_json(file, _MAX_SUMMARY_BYTES)
     except FileNotFoundError:
-        raise ValueError(
-            f"{folder}: no summary.json; expected a folder written by jaxpg sweep --out") from None
-    except json.JSONDecodeError as error:
-        raise ValueError(f"{folder}: summary.json is not valid JSON ({error})") from None
+        raise _missing(folder, "summary.json") from None
     if not isinstance(summary, dict) or not isinstance(summary.get("config"), dict):
         raise ValueError(f"{folder}: summary.json holds no sweep config; run the sweep again")
+    if summary.get("format") != SWEEP_FORMAT:
+        found = ("no format marker" if "format" not in summary
+                 else f"format {_json_value(summary['format'])}")
+        raise ValueError(f"{folder}: written by another version of jaxpg ({found}, this version "
+                         f"reads {SWEEP_FORMAT!r}); run the sweep again")
+    _number(summary["config"].get("solved_return"), f"{file}: config.solved_return")
     return summary
+
+
+def _read_grid(grid: object, file: pathlib.Path) -> list[dict[str, float]]:
+    """summary.json's grid as G settings `{name: value}`; a ValueError naming `file` and the
+    entry unless each is an object of numbers with a learning_rate and a discount."""
+    if not isinstance(grid, list) or not grid:
+        raise ValueError(f"{file}: grid must be a non-empty array of settings, got "
+                         f"{_json_value(grid)}")
+    for g, setting in enumerate(grid):
+        if not isinstance(setting, dict) or not {"learning_rate", "discount"} <= setting.keys():
+            raise ValueError(f"{file}: grid[{g}] must be an object with a learning_rate and a "
+                             f"discount")
+    return [{name: _number(value, f"{file}: grid[{g}].{name}") for name, value in setting.items()}
+            for g, setting in enumerate(grid)]
+
+
+def _number(value: object, where: str) -> float:
+    """A JSON value as a float; a ValueError naming `where` unless it is a finite number."""
+    if (isinstance(value, bool) or not isinstance(value, int | float)
+            or not abs(value) <= sys.float_info.max):  # (an int compares exactly; NaN false)
+        raise ValueError(f"{where}: must be a finite number, got {_json_value(value)}")
+    return float(value)
+
+
+def _json_value(value: object) -> str:
+    """A JSON value for a message: quoted, cut at 40 characters, where it is a string or a
+    number; else its type in words (an array or object may be long or deeply nested)."""
+    return _JSON_TYPES.get(type(value)) or f"{value!r:.40}"
+
+
+def _read_metrics(path: pathlib.Path, folder: str | pathlib.Path) -> dict[str, np.ndarray]:
+    """`path`'s metrics.npz: finite float64 mean_return and, where it holds them, eval_returns
+    (`safe_read.read_arrays`); a ValueError naming `folder` or the file otherwise."""
+    npz = path / "metrics.npz"
+    try:
+        arrays = safe_read.read_arrays(npz, ("mean_return", "eval_returns"), _MAX_ARRAY_BYTES)
+    except FileNotFoundError:
+        raise _missing(folder, "metrics.npz") from None
+    if "mean_return" not in arrays:
+        raise ValueError(f"{npz}: no mean_return; run the sweep again")
+    return {name: check_finite(f"{npz}: {name}", values).astype(np.float64)
+            for name, values in arrays.items()}
+
+
+def _check_distinct(folders: Sequence[str | pathlib.Path]) -> None:
+    """Raises a ValueError naming two of `folders` that are one folder (`X` and `X/`, links)."""
+    seen: dict[str, str | pathlib.Path] = {}
+    for folder in folders:
+        real = os.path.realpath(folder)
+        if real in seen:
+            raise ValueError(f"folders: a folder is given more than once ({seen[real]} and "
+                             f"{folder} are the same folder)")
+        seen[real] = folder
 
 
 def check_comparable(sweeps: Sequence[Sweep]) -> None:
     """Raises a ValueError naming what differs unless the sweeps may be compared setting by setting.
 
-    Their configs must be equal but for the grid fields, and their scores of one kind.
+    Their configs must be equal but for the grid fields, their metrics of one length, and their
+    scores of one kind.
 
     Args:
       sweeps: one or more sweeps, as `load_sweep` reads them.
@@ -160,6 +235,10 @@ def check_comparable(sweeps: Sequence[Sweep]) -> None:
             raise ValueError(f"folders: {first.folder} and {other.folder} differ in "
                              f"{', '.join(differ)}; only learning rates, discounts and seeds may "
                              f"differ")
+        if other.curves.shape[-1] != first.curves.shape[-1]:
+            raise ValueError(f"folders: {first.folder} and {other.folder} hold metrics of "
+                             f"different lengths ({first.curves.shape[-1]} against "
+                             f"{other.curves.shape[-1]} iterations); compare sweeps of one length")
         if other.score != first.score:
             raise ValueError(f"folders: {first.folder} and {other.folder} score their runs "
                              f"differently ({first.score}; {other.score}); compare like with like")
@@ -192,8 +271,7 @@ def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, rep
     """
     if not folders:
         raise ValueError("folders: give at least one sweep folder")
-    if len(set(map(str, folders))) < len(folders):
-        raise ValueError("folders: a folder is given more than once")
+    _check_distinct(folders)
     sweeps = [load_sweep(folder) for folder in folders]
     check_comparable(sweeps)
     units = _units(sweeps)
@@ -304,8 +382,9 @@ def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confid
                                    profiles["high"], labels, stage / PLOT_FILES[1], xlabel="return")
         plots.iqm_curves(curves["iteration"], curves["estimate"], curves["low"], curves["high"],
                          labels, stage / PLOT_FILES[2], solved_return=comparison["solved_return"])
-        plots.improvement_heatmap(comparison["probability_of_improvement"]["probability"], labels,
-                                  stage / PLOT_FILES[3])
+        improvement = comparison["probability_of_improvement"]
+        plots.improvement_heatmap(improvement["probability"], labels, stage / PLOT_FILES[3],
+                                  low=improvement["low"], high=improvement["high"])
     return comparison
 
 

@@ -1,16 +1,21 @@
 """Checkpoints: round trips, the documented format, bad files, and atomic writes."""
 
 import dataclasses
+import functools
+import hashlib
 import json
 import os
 import pathlib
 import signal
 import subprocess
 import sys
+import warnings
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 from conftest import SMALL_CONFIG
 from flax import serialization
@@ -71,13 +76,26 @@ def test_preset_env_no_metrics_and_directories(tmp_path):
     assert loaded.metrics is None
 
 
+def test_a_final_separator_names_a_folder_to_create(tmp_path):
+    path = checkpoint.save(f"{tmp_path}/missing/dir{os.sep}", _params(CONFIG), CONFIG)
+    assert path == tmp_path / "missing" / "dir" / checkpoint.FILENAME
+    assert checkpoint.load(tmp_path / "missing" / "dir").config == CONFIG
+    assert checkpoint.save(f"{tmp_path}/missing/file", _params(CONFIG), CONFIG).is_file()
+
+
+def _content(path):
+    """The map of a checkpoint's content, and the file's own map."""
+    payload = serialization.msgpack_restore(path.read_bytes())
+    return serialization.msgpack_restore(payload["content"]), payload
+
+
 def test_file_holds_the_documented_fields(tmp_path):
     path = checkpoint.save(tmp_path / "p.msgpack", _params(CONFIG), CONFIG, _metrics())
-    payload = serialization.msgpack_restore(path.read_bytes())
-    assert set(payload) == {
-        "format", "format_version", "jaxpg_version", "config", "policy_params", "metrics"
-    }
-    assert payload["format"] == "jaxpg-checkpoint" and payload["format_version"] == 1
+    payload, outer = _content(path)
+    assert set(outer) == {"format", "format_version", "sha256", "content"}
+    assert outer["format"] == "jaxpg-checkpoint" and outer["format_version"] == 3
+    assert outer["sha256"] == hashlib.sha256(outer["content"]).hexdigest()
+    assert set(payload) == {"jaxpg_version", "config", "policy_params", "metrics"}
     assert payload["config"]["hidden"] == [4, 3]
     assert payload["config"]["env"]["masspole"] == pytest.approx(0.2)
     assert payload["config"]["env"]["integrator"] == "semi-implicit"
@@ -93,16 +111,27 @@ def test_save_rejects_params_of_another_network(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def _payload(**changes):
-    payload = {
-        "format": checkpoint.FORMAT,
-        "format_version": checkpoint.FORMAT_VERSION,
+_OUTER = ("format", "format_version", "sha256", "content")  # the file's own map's fields
+
+
+def _payload(version=checkpoint.FORMAT_VERSION, **changes):
+    """A checkpoint file of CONFIG's parameters in format `version`, the fields of `changes`
+    (those of `_OUTER` in the file's map, the others in its content) replaced."""
+    fields = {
         "jaxpg_version": jaxpg.__version__,
         "config": checkpoint.config_to_dict(CONFIG),
         "policy_params": jax.tree.map(np.asarray, _params(CONFIG)),
         "metrics": None,
+        **{name: value for name, value in changes.items() if name not in _OUTER},
     }
-    return serialization.msgpack_serialize({**payload, **changes})
+    outer = {"format": checkpoint.FORMAT, "format_version": version}
+    if version < 3:  # earlier versions: the fields beside the format, unchecked
+        outer.update(fields)
+    else:
+        content = serialization.msgpack_serialize(fields)
+        outer.update(sha256=hashlib.sha256(content).hexdigest(), content=content)
+    return serialization.msgpack_serialize(
+        {**outer, **{name: value for name, value in changes.items() if name in _OUTER}})
 
 
 @pytest.mark.parametrize(
@@ -112,11 +141,16 @@ def _payload(**changes):
         (lambda: np.random.default_rng(0).bytes(256), "not a jaxpg checkpoint"),
         (lambda: json.dumps({"format": "jaxpg-checkpoint"}).encode(), "not a jaxpg checkpoint"),
         (lambda: serialization.msgpack_serialize({"weights": [1, 2]}), "format marker"),
-        (lambda: _payload(format_version=checkpoint.FORMAT_VERSION + 1), "newer"),
+        (lambda: _payload(format_version=checkpoint.FORMAT_VERSION + 1),
+         r"format version 4 is newer than this jaxpg reads \(up to 3\); upgrade jaxpg$"),
         (lambda: _payload(config={**checkpoint.config_to_dict(CONFIG), "hidden": [7]}), "fit"),
         (lambda: _payload(config={"colour": "red"}), "damaged"),
+        (lambda: serialization.msgpack_serialize([checkpoint.FORMAT]), "no msgpack map"),
+        (lambda: _payload(sha256=hashlib.sha256(b"other").hexdigest()), "does not match"),
+        (lambda: _payload(sha256=None), "its content or sha256 is missing"),
     ],
-    ids=["truncated", "random", "json", "foreign-msgpack", "newer", "mismatch", "bad-config"],
+    ids=["truncated", "random", "json", "foreign-msgpack", "newer", "mismatch", "bad-config",
+         "array", "other-checksum", "no-checksum"],
 )
 def test_bad_files_raise_a_value_error_naming_the_path(tmp_path, content, problem):
     path = tmp_path / "policy.msgpack"
@@ -162,16 +196,132 @@ def test_weights_and_metrics_of_a_diverged_run_load(tmp_path):
     path = tmp_path / "policy.msgpack"
     path.write_bytes(_payload(policy_params=params,
                               metrics=jax.tree.map(np.asarray, metrics._asdict())))
-    loaded = checkpoint.load(path)
+    with pytest.warns(RuntimeWarning, match="the weights hold NaN or infinity") as warned:
+        loaded = checkpoint.load(path)
+    assert len(warned) == 1 and str(path) in str(warned[0].message)
     np.testing.assert_array_equal(loaded.metrics.loss, metrics.loss)
     jax.tree.map(np.testing.assert_array_equal, loaded.policy_params, params)
+
+
+def test_a_sweep_with_diverged_runs_warns_how_many(tmp_path):
+    params = jax.tree.map(lambda leaf: np.stack([[leaf] * 3] * 2), _params(CONFIG))  # [2, 3, ...]
+    params["params"]["Dense_1"]["bias"][1, 0] = np.inf
+    params["params"]["Dense_0"]["kernel"][0, 2, 1, 1] = np.nan
+    grid = [{"learning_rate": 0.01}, {"learning_rate": 0.02}]
+    path = checkpoint.save(tmp_path, params, CONFIG, runs={"grid": grid, "seeds": [0, 1, 2]})
+    with pytest.warns(RuntimeWarning, match="the weights of 2 of 6 runs hold NaN"):
+        checkpoint.load(path)
+
+
+def test_finite_weights_load_without_warning(tmp_path):
+    path = checkpoint.save(tmp_path, _params(CONFIG), CONFIG)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        checkpoint.load(path)
+
+
+def test_files_of_the_earlier_versions_load_unchecked(tmp_path):
+    path = tmp_path / "policy.msgpack"
+    path.write_bytes(_payload(version=1, jaxpg_version="0.1.0"))
+    loaded = checkpoint.load(path)
+    assert loaded.version == "0.1.0" and loaded.config == CONFIG and loaded.grid is None
+    _assert_trees_equal(loaded.policy_params, _params(CONFIG))
+    params = jax.tree.map(lambda leaf: np.stack([[leaf, leaf]]), _params(CONFIG))  # [1, 2, ...]
+    path.write_bytes(_payload(version=2, policy_params=params,
+                              runs={"grid": [{"learning_rate": 0.01}], "seeds": [3, 4]}))
+    loaded = checkpoint.load(path)
+    assert loaded.grid == [{"learning_rate": 0.01}] and loaded.seeds.tolist() == [3, 4]
+
+
+def test_every_flipped_bit_is_refused_or_changes_nothing(tmp_path):
+    path = checkpoint.save(tmp_path / "policy.msgpack", _params(CONFIG), CONFIG, _metrics())
+    data = path.read_bytes()
+    original = checkpoint.load(path)
+    _, outer = _content(path)
+    start = data.index(outer["content"])
+    # 24 bits evenly spaced over the whole file, and one bit of every byte of the file's own map
+    # (its keys, format, version and checksum), a different bit in each byte.
+    around = [k for k in range(len(data)) if not start <= k < start + len(outer["content"])]
+    bits = [*np.linspace(0, 8 * len(data) - 1, 24).astype(int), *(8 * k + k % 8 for k in around)]
+    refused = []
+    for bit in bits:
+        flipped = bytearray(data)
+        flipped[bit // 8] ^= 1 << (bit % 8)
+        path.write_bytes(flipped)
+        try:
+            loaded = checkpoint.load(path)
+        except ValueError as error:
+            assert str(error).startswith(f"{path}: ") and "\n" not in str(error)
+            refused.append(bit)
+            continue
+        assert loaded.config == original.config and loaded.version == original.version
+        _assert_trees_equal(loaded.policy_params, original.policy_params)
+        _assert_trees_equal(loaded.metrics, original.metrics)
+    inside = [bit for bit in bits if bit // 8 not in around]
+    assert inside and set(inside) <= set(refused)  # the content's: refused by the checksum
+
+
+class _TanhPolicy(nn.Module):
+    """A user's module: one tanh layer of 4 units, then a logit."""
+
+    @nn.compact
+    def __call__(self, obs):
+        return nn.Dense(1)(nn.tanh(nn.Dense(4)(obs)))[..., 0]
+
+
+class _ReluPolicy(nn.Module):
+    """Another class with the same parameters' shapes as `_TanhPolicy`."""
+
+    @nn.compact
+    def __call__(self, obs):
+        return nn.Dense(1)(nn.relu(nn.Dense(4)(obs)))[..., 0]
+
+
+def test_a_module_of_another_class_is_refused_naming_the_one_expected(tmp_path):
+    config = TrainConfig(policy=_TanhPolicy())
+    path = checkpoint.save(tmp_path, _params(config), config)
+    assert checkpoint.load(path, policy=_TanhPolicy()).config == config
+    with pytest.raises(ValueError, match=r"^policy: the checkpoint was trained with "
+                                         r"\S*_TanhPolicy, got \S*_ReluPolicy$"):
+        checkpoint.load(path, policy=_ReluPolicy())
+
+
+def test_an_optimizer_of_functools_partial_is_saved_and_checked_by_its_type(tmp_path):
+    config = TrainConfig(optimizer=functools.partial(optax.adam, b1=0.8))
+    path = checkpoint.save(tmp_path, _params(config), config)
+    assert checkpoint.load(path, optimizer=config.optimizer).config == config
+    with pytest.raises(ValueError, match=r"^optimizer: the checkpoint was trained with "
+                                         r"functools.partial, got optax\S*\.sgd$"):
+        checkpoint.load(path, optimizer=optax.sgd)
+
+
+@pytest.mark.parametrize("seed", [2**64 - 1, 2**32, -1])
+def test_seeds_out_of_range_are_a_one_line_value_error(tmp_path, seed):
+    params = jax.tree.map(lambda leaf: np.stack([[leaf]]), _params(CONFIG))  # [1, 1, ...]
+    path = tmp_path / "policies.msgpack"
+    path.write_bytes(_payload(policy_params=params,
+                              runs={"grid": [{"learning_rate": 0.01}], "seeds": [seed]}))
+    with pytest.raises(ValueError, match=r"runs.seeds: must be an integer in \[0, 2\*\*32\)"
+                       ) as error:
+        checkpoint.load(path)
+    assert str(error.value).startswith(f"{path}: ") and "\n" not in str(error.value)
+
+
+def test_no_regular_file_is_refused_without_reading(tmp_path):
+    fifo = tmp_path / "policy.msgpack"
+    os.mkfifo(fifo)  # opened for reading as a file, it would wait for a writer forever
+    with pytest.raises(ValueError, match=r"policy.msgpack: not a regular file \(a FIFO\)"):
+        checkpoint.load(tmp_path)
+    (tmp_path / "zero.msgpack").symlink_to("/dev/zero")  # as a file, endless
+    with pytest.raises(ValueError, match=r"zero.msgpack: not a regular file \(a character"):
+        checkpoint.load(tmp_path / "zero.msgpack")
 
 
 def test_a_sweeps_runs_in_one_file(tmp_path, small_sweep):
     path = checkpoint.save_sweep(tmp_path, small_sweep, SMALL_CONFIG)
     assert path == tmp_path / "policies.msgpack"
-    payload = serialization.msgpack_restore(path.read_bytes())
-    assert payload["format_version"] == 2 and payload["runs"]["seeds"] == [0, 1, 2, 3, 4]
+    payload, _ = _content(path)
+    assert payload["runs"]["seeds"] == [0, 1, 2, 3, 4]
     assert payload["policy_params"]["params"]["Dense_0"]["kernel"].shape == (2, 5, 4, 5)
     loaded = checkpoint.load(tmp_path)  # the folder `jaxpg sweep` writes
     assert loaded.grid == small_sweep.grid and loaded.config == SMALL_CONFIG
@@ -200,8 +350,7 @@ def test_a_sweeps_run_takes_its_physics_and_bad_runs_are_refused(tmp_path):
                               0, 0)
     with pytest.raises(ValueError, match="policy_params: parameters do not fit"):
         checkpoint.save(tmp_path / "q.msgpack", params, CONFIG, runs={"grid": grid, "seeds": [4]})
-    path.write_bytes(_payload(format_version=2, policy_params=params,
-                              runs={"grid": grid * 2, "seeds": [4, 7]}))
+    path.write_bytes(_payload(policy_params=params, runs={"grid": grid * 2, "seeds": [4, 7]}))
     with pytest.raises(ValueError, match="damaged.*do not fit"):
         checkpoint.load(path)
 

@@ -2,7 +2,9 @@
 are refused in one line."""
 
 import json
+import os
 import shutil
+import zipfile
 
 import numpy as np
 import pytest
@@ -43,11 +45,132 @@ def _edit_summary(folder, edit):
 
 
 def _add_to_npz(folder, **arrays):
-    """Rewrites metrics.npz with what the report reads from it, and `arrays`."""
+    """Rewrites metrics.npz with what the report reads from it, and `arrays` (which replace
+    those of the same names)."""
     with np.load(folder / "metrics.npz") as npz:
         contents = {name: npz[name]
                     for name in ("seeds", "learning_rate", "discount", "mean_return")}
-    np.savez(folder / "metrics.npz", **contents, **arrays)
+    np.savez(folder / "metrics.npz", **{**contents, **arrays})
+
+
+def _npy(shape, descr="<f4", data=b""):
+    """An .npy file written by hand: version 1.0's header declaring `shape` of `descr`, padded
+    to 64 bytes as numpy pads it, then `data`."""
+    header = repr({"descr": descr, "fortran_order": False, "shape": shape}).encode()
+    header += b" " * (-(10 + len(header) + 1) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header + data
+
+
+def _write_npz(folder, **members):
+    """Writes metrics.npz as a zip archive of the given `.npy` members' bytes."""
+    with zipfile.ZipFile(folder / "metrics.npz", "w") as archive:
+        for name, data in members.items():
+            archive.writestr(f"{name}.npy", data)
+
+
+def _flip_a_bit_of_mean_return(folder):
+    """Flips the lowest bit of the last byte of mean_return's data, stored uncompressed."""
+    _add_to_npz(folder)
+    with np.load(folder / "metrics.npz") as npz:
+        stored = npz["mean_return"].tobytes()
+    data = bytearray((folder / "metrics.npz").read_bytes())
+    data[data.index(stored) + len(stored) - 1] ^= 1
+    (folder / "metrics.npz").write_bytes(data)
+
+
+def _nested(depth):
+    return "[" * depth + "]" * depth
+
+
+# Each case damages a copy of sweep "a" (2 settings x 4 seeds x 3 iterations): (file, edit,
+# what the message says after the file's path).
+DAMAGED = {
+    "truncated npz": ("metrics.npz", lambda f: (f / "metrics.npz").write_bytes(
+        (f / "metrics.npz").read_bytes()[:300]), "damaged .npz archive (BadZipFile"),
+    "not a zip": ("metrics.npz", lambda f: (f / "metrics.npz").write_bytes(b"PK" + bytes(500)),
+                  "damaged .npz archive"),
+    # 2**37 float32 values: 512 GiB, which loading would allocate before reading a byte.
+    "512 GiB header": ("metrics.npz", lambda f: _write_npz(f, mean_return=_npy((2**37,))),
+                       "mean_return.npy: its header declares shape (137438953472,) of float32, "
+                       "549755813888 bytes, more than the 4294967296 allowed"),
+    # 2 * 4 * 2**20 float32 values declared (32 MiB), 4 bytes held.
+    "header beyond data": ("metrics.npz", lambda f: _write_npz(
+        f, mean_return=_npy((2, 4, 2**20), data=bytes(4))),
+        "mean_return.npy: its header declares 33554432 bytes of data, the archive holds 4"),
+    "flipped bit": ("metrics.npz", _flip_a_bit_of_mean_return,
+                    "damaged .npz archive (BadZipFile: Bad CRC-32 for file 'mean_return.npy')"),
+    "no npy header": ("metrics.npz", lambda f: _write_npz(f, mean_return=b"{}" * 40),
+                      "mean_return.npy: no .npy header"),
+    "objects": ("metrics.npz", lambda f: _write_npz(f, mean_return=_npy((2,), "|O", bytes(16))),
+                "mean_return.npy: expected an array of numbers, got shape (2,) of object"),
+    "no mean_return": ("metrics.npz", lambda f: _write_npz(f, seeds=_npy((0,))),
+                       "no mean_return; run the sweep again"),
+    "other settings": ("metrics.npz", lambda f: _add_to_npz(f, mean_return=np.ones((3, 4, 3))),
+                       "mean_return of shape [3, 4, 3], expected [G, S, I] with G = 2"),
+    "no iterations": ("metrics.npz", lambda f: _add_to_npz(f, mean_return=np.ones((2, 4, 0))),
+                      "mean_return of shape [2, 4, 0], expected [G, S, I]"),
+    "NaN return": ("metrics.npz", lambda f: _add_to_npz(f, mean_return=np.full((2, 4, 3), np.nan)),
+                   "mean_return: must be finite, got NaN or infinity"),
+    "no grid": ("summary.json", lambda f: _edit_summary(f, lambda s: s.pop("grid")),
+                "grid must be a non-empty array of settings, got null"),
+    "grid of another type": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s.update(grid={"learning_rate": [0.01]})),
+        "grid must be a non-empty array of settings, got an object"),
+    "setting without discount": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["grid"][1].pop("discount")),
+        "grid[1] must be an object with a learning_rate and a discount"),
+    "setting of another type": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["grid"].__setitem__(0, [0.01, 0.95])),
+        "grid[0] must be an object with a learning_rate and a discount"),
+    "text learning rate": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["grid"][0].update(learning_rate="0.01")),
+        "grid[0].learning_rate: must be a finite number, got '0.01'"),
+    "list discount": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["grid"][1].update(discount=[0.9])),
+        "grid[1].discount: must be a finite number, got an array"),
+    "huge integer": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["grid"][1].update(discount=10**400)),
+        "grid[1].discount: must be a finite number, got 1000000000000000000000000000000000000000"),
+    "no solved_return": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["config"].pop("solved_return")),
+        "config.solved_return: must be a finite number, got null"),
+    "nested 100000 deep": ("summary.json", lambda f: (f / "summary.json").write_text(
+        _nested(100_000)), "not valid JSON (nested too deeply)"),
+    "not UTF-8": ("summary.json", lambda f: (f / "summary.json").write_bytes(b'{"\xff": 1}'),
+                  "not valid JSON"),
+    "not JSON": ("summary.json", lambda f: (f / "summary.json").write_text("{"),
+                 "not valid JSON (Expecting property name"),
+    "a folder": ("summary.json", lambda f: ((f / "summary.json").unlink(),
+                                            (f / "summary.json").mkdir()),
+                 "not a regular file (a folder)"),
+}
+
+
+@pytest.mark.parametrize("case", DAMAGED)
+def test_damaged_files_are_one_line_errors_naming_the_file(sweeps, tmp_path, case):
+    name, damage, message = DAMAGED[case]
+    folder = _copy(sweeps, tmp_path)
+    damage(folder)
+    with pytest.raises(ValueError) as error:
+        report.load_sweep(folder)
+    assert str(error.value).startswith(f"{folder / name}: {message}")
+    assert "\n" not in str(error.value)
+
+
+def test_files_over_their_bounds_are_refused_before_they_are_read(sweeps, tmp_path, monkeypatch):
+    folder = _copy(sweeps, tmp_path)
+    size = (folder / "summary.json").stat().st_size
+    monkeypatch.setattr(report, "_MAX_SUMMARY_BYTES", size - 1)
+    with pytest.raises(ValueError, match=f"summary.json: {size} bytes, more than the {size - 1}"):
+        report.load_sweep(folder)
+    monkeypatch.undo()
+    # A zip bomb: 2 x 4 x 2**20 zeros (32 MiB) compress to about 32 KiB.
+    np.savez_compressed(folder / "metrics.npz", mean_return=np.zeros((2, 4, 2**20), np.float32))
+    assert (folder / "metrics.npz").stat().st_size < 2**20
+    monkeypatch.setattr(report, "_MAX_ARRAY_BYTES", 2**20)
+    with pytest.raises(ValueError, match="mean_return.npy: its header declares shape "
+                                         r"\(2, 4, 1048576\) of float32, 33554432 bytes"):
+        report.load_sweep(folder)
 
 
 def test_sweep_writes_its_report(sweeps):
@@ -124,6 +247,9 @@ def test_compare_prints_a_table_and_the_matrix_and_writes_the_report(sweeps, tmp
      "differ in max_steps (20 against 10); only learning rates, discounts and seeds may differ"),
     ("one seed", "has 1 run; a comparison needs at least 2 seeds per setting"),
     ("twice", "folders: a folder is given more than once"),
+    ("final separator", "are the same folder"),
+    ("linked", "are the same folder"),
+    ("other length", "hold metrics of different lengths (3 against 5 iterations)"),
 ])
 def test_bad_folders_exit_2_with_one_line(sweeps, tmp_path, capsys, case, message):
     copy = tmp_path / "copy"
@@ -137,8 +263,13 @@ def test_bad_folders_exit_2_with_one_line(sweeps, tmp_path, capsys, case, messag
         _edit_summary(copy, lambda summary: summary.update(format="jaxpg-sweep-0"))
     elif case == "other config":
         _edit_summary(copy, lambda summary: summary["config"].update(max_steps=10))
-    folders = {"one seed": [sweeps / "one"], "twice": [sweeps / "a", sweeps / "a"]}.get(
-        case, [sweeps / "a", copy])
+    elif case == "other length":  # a config of 3 iterations, metrics of 5
+        _add_to_npz(copy, mean_return=np.ones((2, 4, 5)))
+    elif case == "linked":
+        (tmp_path / "link").symlink_to(sweeps / "a")
+    folders = {"one seed": [sweeps / "one"], "twice": [sweeps / "a", sweeps / "a"],
+               "final separator": [sweeps / "a", f"{sweeps / 'a'}{os.sep}"],
+               "linked": [sweeps / "a", tmp_path / "link"]}.get(case, [sweeps / "a", copy])
     assert cli.run_command(["compare", *map(str, folders), "--out", str(tmp_path / "out")]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and lines[0].startswith("jaxpg compare: error:")
