@@ -13,7 +13,7 @@ import numpy as np
 from flax import struct
 
 from jaxpg.types import ArrayLike, Observation, PRNGKey
-from jaxpg.validation import check_choice, check_finite
+from jaxpg.validation import check_choice, check_finite, check_representable, in_float64
 
 INTEGRATORS = ("euler", "semi-implicit")
 
@@ -186,6 +186,11 @@ def make_params(env: str = "CartPole-v1", **overrides: Any) -> CartPoleParams:
 _POSITIVE = ("masscart", "masspole", "length", "force_mag", "tau", "x_threshold",
              "theta_threshold_radians", "max_steps")
 
+# The quantities that `step` and `reset` derive from the fields, as `check_params` names them.
+_DERIVED = {"masspole + masscart": (np.add, "masspole", "masscart"),
+            "masspole * length": (np.multiply, "masspole", "length"),
+            "reset_high - reset_low": (np.subtract, "reset_high", "reset_low")}
+_POSITIVE_IN_FLOATS = (*_POSITIVE, "masspole + masscart", "masspole * length")
 
 _NUMBERS = tuple(field.name for field in dataclasses.fields(CartPoleParams)
                  if field.metadata.get("pytree_node", True))
@@ -195,29 +200,45 @@ MAX_STEPS_LIMIT = 2**31  # episodes count their steps in int32
 def check_params(env_params: CartPoleParams) -> None:
     """Checks every concrete value of `env_params`; values under a trace are skipped.
 
+    Each number is checked in the float dtype that `step` computes in, JAX's default
+    (`jax.dtypes.canonicalize_dtype(float)`: float32 unless `jax_enable_x64`), by
+    `check_representable`: none may overflow there, and a field that must be positive must be
+    at least the dtype's smallest normal number, not 0 or subnormal once converted (a `tau` of
+    1e-300 is 0 in float32: the cart would never move). So are the quantities `step` derives:
+    `total_mass` and `polemass_length` (positive too), and the width `reset_high - reset_low`
+    that `reset` draws in.
+
     Raises:
       ValueError: naming the first invalid field: a value that is not finite, a mass, length,
-        force, time step or threshold at or below 0, a `max_steps` that is not an integer in
-        [1, MAX_STEPS_LIMIT), reset bounds out of order, an unknown integrator, or `env_params`
-        not a `CartPoleParams`.
+        force, time step or threshold at or below 0, a value or derived quantity that overflows
+        or underflows as above, a `max_steps` that is not an integer in [1, MAX_STEPS_LIMIT),
+        reset bounds out of order, an unknown integrator, or `env_params` not a
+        `CartPoleParams`.
     """
     if not isinstance(env_params, CartPoleParams):
         raise ValueError(f"env_params: expected a CartPoleParams, got {type(env_params).__name__}")
     check_choice("integrator", env_params.integrator, INTEGRATORS)
-    for name in _NUMBERS:
-        value = _concrete(getattr(env_params, name))
+    values = {name: _concrete(getattr(env_params, name)) for name in _NUMBERS}
+    for name, value in values.items():
         if value is not None:
             check_finite(name, value)
-    steps = _concrete(env_params.max_steps)
+    steps = values.pop("max_steps")
     if steps is not None and not (steps.dtype.kind in "iu" and np.all(steps < MAX_STEPS_LIMIT)):
         raise ValueError(f"max_steps: must be an integer in [1, 2**31), got {steps}")
     for name in _POSITIVE:
         value = _concrete(getattr(env_params, name))
         if value is not None and not np.all(value > 0):
             raise ValueError(f"{name}: must be positive, got {value}")
-    low, high = _concrete(env_params.reset_low), _concrete(env_params.reset_high)
+    floats = jax.dtypes.canonicalize_dtype(float)
+    for name, (operation, *operands) in _DERIVED.items():
+        if all(values[operand] is not None for operand in operands):
+            values[name] = in_float64(operation, *(values[operand] for operand in operands))
+    cast = {name: check_representable(name, value, floats, name in _POSITIVE_IN_FLOATS)
+            for name, value in values.items() if value is not None}
+    low, high = cast.get("reset_low"), cast.get("reset_high")
     if low is not None and high is not None and not np.all(low < high):
-        raise ValueError(f"reset_low: must be below reset_high, got {low} >= {high}")
+        raise ValueError(f"reset_low: must be below reset_high in {floats}, got "
+                         f"{values['reset_low']} >= {values['reset_high']}")
 
 
 def _concrete(value: ArrayLike) -> np.ndarray | None:

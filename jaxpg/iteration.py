@@ -462,8 +462,10 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
 
     Raises:
       ValueError: naming the field at fault: an optimizer function that returns no
-        `optax.GradientTransformation` or one that asks for more than the gradient, or a loss
-        that returns no (scalar, dict of scalars).
+        `optax.GradientTransformation`, one that asks for more than the gradient, or one whose
+        update returns no (updates, state) with updates of the parameters' tree and shapes; a
+        policy whose logits are not floating; or a loss that returns no (scalar, dict of
+        scalars).
     """
     optimizer = make_optimizer(config, 0.01)
     if not isinstance(optimizer, optax.GradientTransformation):
@@ -472,6 +474,19 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
     if not steps_on_gradients(optimizer):
         raise ValueError("optimizer: the function's optimizer asks for more than the gradient, "
                          "its state and the parameters in its update (as optax's lbfgs does)")
+    params, opt_state = jax.eval_shape(
+        lambda key: init_run(config, key, config.hyperparams),
+        jax.ShapeDtypeStruct((2,), jnp.uint32))
+    step = jax.eval_shape(lambda p: optimizer.update(p, optimizer.init(p), p), params)
+    if not (isinstance(step, tuple) and len(step) == 2):
+        raise ValueError(f"optimizer: its update must return (updates, state), got "
+                         f"{type(step).__name__}")
+    shapes = [jax.tree.map(lambda leaf: leaf.shape, tree) for tree in (params, step[0])]
+    # jaxlib's stubs leave PyTreeDef unresolved, so mypy cannot compare two of them.
+    if (jax.tree.structure(params) != jax.tree.structure(step[0])  # type: ignore[operator]
+            or shapes[0] != shapes[1]):
+        raise ValueError(f"optimizer: its update must return updates of the parameters' tree "
+                         f"and shapes, {shapes[0]}, got {shapes[1]}")
     if config.hand_gradient:
         return ()
     floats = jnp.result_type(float)
@@ -481,10 +496,10 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
     shaped: Any = jax.ShapeDtypeStruct  # a batch of shapes, in place of arrays
     batch = losses.Batch(shaped((*steps, 4), floats), shaped(steps, jnp.int32),
                          shaped(steps, floats), shaped(steps, bool), shaped(steps, floats))
-    params, opt_state = jax.eval_shape(
-        lambda key: init_run(config, key, config.hyperparams),
-        jax.ShapeDtypeStruct((2,), jnp.uint32))
-    jax.eval_shape(functools.partial(policies.logits, config.network), params["policy"], batch.obs)
+    logit = jax.eval_shape(functools.partial(policies.logits, config.network), params["policy"],
+                           batch.obs)
+    if not jnp.issubdtype(logit.dtype, jnp.floating):
+        raise ValueError(f"policy: the module's logits must be floating, got {logit.dtype}")
     loss_fn = losses.resolve(config.loss)
     apply_fn = functools.partial(policies.logits, config.network)
     has_critic = losses.critic(config.loss) is not None

@@ -18,6 +18,10 @@ two ways, chosen by `paired`:
   interval several times over. It holds for independent tasks too, at about the stratified
   width, but needs the same runs in every table.
 
+Scores must be finite, and no larger in magnitude than float64's largest number over 8 times the
+scores an aggregate takes together (about 2e301 for a million), so that no statistic here
+overflows; larger ones are refused.
+
 `iqm_curve` always resamples whole runs (their curves). Every bootstrap is seeded, so a report is
 reproducible, and vectorised: the resamples are drawn and reduced as one array, in chunks that
 bound the memory.
@@ -33,6 +37,7 @@ from typing import Any, NamedTuple, cast
 import numpy as np
 import numpy.typing as npt
 import scipy.stats
+from numpy.lib.array_utils import normalize_axis_index
 
 from jaxpg.validation import check_finite, check_int
 
@@ -63,7 +68,7 @@ def iqm(scores: np.ndarray, axis: int | None = None) -> Aggregate:
     Returns:
       A float for `axis=None`, otherwise the array without `axis`.
     """
-    return scipy.stats.trim_mean(_check_scores(scores), 0.25, axis=axis)
+    return scipy.stats.trim_mean(_check_scores(scores, axis=axis), 0.25, axis=axis)
 
 
 def mean(scores: np.ndarray, axis: int | None = None) -> Aggregate:
@@ -76,12 +81,12 @@ def mean(scores: np.ndarray, axis: int | None = None) -> Aggregate:
     Returns:
       A float for `axis=None`, otherwise the array without `axis`.
     """
-    return np.mean(_check_scores(scores), axis=axis)
+    return np.mean(_check_scores(scores, axis=axis), axis=axis)
 
 
 def median(scores: np.ndarray, axis: int | None = None) -> Aggregate:
     """The median score; its arguments and result are those of `mean`."""
-    return np.median(_check_scores(scores), axis=axis)
+    return np.median(_check_scores(scores, axis=axis), axis=axis)
 
 
 def optimality_gap(scores: np.ndarray, target: float, axis: int | None = None) -> Aggregate:
@@ -103,7 +108,7 @@ def optimality_gap(scores: np.ndarray, target: float, axis: int | None = None) -
     """
     if not math.isfinite(target):
         raise ValueError(f"target: must be a finite number, got {target!r}")
-    return target - np.mean(np.minimum(_check_scores(scores), target), axis=axis)
+    return target - np.mean(np.minimum(_check_scores(scores, axis=axis), target), axis=axis)
 
 
 STATISTICS: dict[str, Callable[..., Aggregate]] = {"iqm": iqm, "mean": mean, "median": median}
@@ -519,14 +524,39 @@ def _interval(replicates: np.ndarray, confidence: float) -> tuple[Any, Any]:
 # --- Checks -------------------------------------------------------------------------------------
 
 
-def _check_scores(scores: npt.ArrayLike, name: str = "scores") -> np.ndarray:
-    """`scores` as a float64 `[R]` or `[R, T]` array; a ValueError unless non-empty and finite."""
+def _check_scores(scores: npt.ArrayLike, name: str = "scores", axis: int | None = None
+                  ) -> np.ndarray:
+    """`scores` as a float64 `[R]` or `[R, T]` array; a ValueError unless non-empty and finite,
+    and of magnitudes at most `_max_score` of the scores that one aggregate takes together: all
+    of them, or those along `axis`."""
     scores = np.asarray(scores, dtype=np.float64)
     if scores.ndim not in (1, 2):
         raise ValueError(f"{name}: expected [runs] or [runs, tasks], got shape {scores.shape}")
     if scores.size == 0:
         raise ValueError(f"{name}: empty, expected at least one score")
-    return check_finite(name, scores)
+    count = scores.size if axis is None else scores.shape[normalize_axis_index(axis, scores.ndim)]
+    largest, limit = np.abs(check_finite(name, scores)).max(), _max_score(count)
+    if largest > limit:
+        raise ValueError(f"{name}: magnitudes must be at most {limit:.4g} for {count} scores, "
+                         f"so that the statistics' sums cannot overflow, got {float(largest)!r}")
+    return scores
+
+
+def _max_score(count: int) -> float:
+    """The largest magnitude of `count` scores whose statistics cannot overflow float64.
+
+    The statistics here sum at most `count` scores, take differences of two such means,
+    interpolate between them, and (`seeds_needed`) scale such a difference by the square root of
+    the runs: with every score at most `float64 max / (8 count)`, none of these exceeds half of
+    float64's largest number. A function given as `statistic` is on its own.
+
+    Args:
+      count: how many scores, `R * T`.
+
+    Returns:
+      The bound: about 2.2e307 for one score, 2.2e301 for a million.
+    """
+    return float(np.finfo(np.float64).max / (8 * count))
 
 
 def _check_interval_args(

@@ -4,7 +4,7 @@ import dataclasses
 import functools
 import inspect
 import warnings
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -14,7 +14,7 @@ import optax
 
 from jaxpg import cartpole, losses, policies
 from jaxpg.types import ArrayLike
-from jaxpg.validation import check_finite, check_int, check_number
+from jaxpg.validation import check_finite, check_int, check_number, check_representable, in_float64
 
 # An optimizer of the user's: `learning_rate -> optax.GradientTransformation`.
 OptimizerFactory = Callable[[ArrayLike], optax.GradientTransformation]
@@ -162,22 +162,33 @@ class Hyperparams(NamedTuple):
 def check_ranges(randomize: Any, env_params: cartpole.CartPoleParams) -> Ranges:
     """`randomize` as sorted `(field, (low, high))` pairs of floats, checked.
 
+    Each bound is checked as the physics it stands for (`cartpole.check_params`), in JAX's default
+    float, and so is the width `high - low` that a draw scales by.
+
     Args:
-      randomize: a dict `{field: (low, high)}`, or `(field, (low, high))` pairs.
+      randomize: a dict `{field: (low, high)}`, or a list or tuple of `(field, (low, high))` pairs.
       env_params: the physics whose fields the ranges replace, to check each bound's physics.
 
     Returns:
       The ranges as `Ranges`, sorted by field.
 
     Raises:
-      ValueError: naming the field, for an unknown one, a range whose low is above its high, or
-        bounds that are not finite or not physical.
+      ValueError: naming `randomize` where it is neither, or names a field twice; naming the field
+        for an unknown one, a range whose low is above its high, or bounds that are not finite,
+        not physical or overflow JAX's default float, as their width may.
     """
-    pairs = randomize.items() if isinstance(randomize, dict) else randomize
-    ranges = []
-    for name, bounds in sorted(pairs):
+    pairs = list(randomize.items()) if isinstance(randomize, Mapping) else randomize
+    if not (isinstance(pairs, list | tuple)
+            and all(isinstance(pair, list | tuple) and len(pair) == 2 for pair in pairs)):
+        raise ValueError(f"randomize: expected a dict {{field: (low, high)}} or (field, (low, "
+                         f"high)) pairs, got {randomize!r}")
+    floats = jax.dtypes.canonicalize_dtype(float)
+    ranges: dict[str, tuple[float, float]] = {}
+    for name, bounds in pairs:
         if name not in PHYSICS:
             raise ValueError(f"randomize: unknown field {name!r}; allowed: {', '.join(PHYSICS)}")
+        if name in ranges:
+            raise ValueError(f"randomize: {name} is given two ranges; give each field one")
         try:
             low, high = (float(bound) for bound in bounds)
         except (TypeError, ValueError):
@@ -187,8 +198,9 @@ def check_ranges(randomize: Any, env_params: cartpole.CartPoleParams) -> Ranges:
         check_finite(name, (low, high))
         for bound in (low, high):
             cartpole.check_params(env_params.replace(**{name: bound}))
-        ranges.append((name, (low, high)))
-    return tuple(ranges)
+        check_representable(f"{name} (high - low)", in_float64(np.subtract, high, low), floats)
+        ranges[name] = (low, high)
+    return tuple(sorted(ranges.items()))
 
 
 def compiled_physics(env_params: cartpole.CartPoleParams) -> bool:
@@ -235,13 +247,18 @@ def stack(settings: Sequence[Hyperparams]) -> Hyperparams:
 def check_hyperparams(learning_rate: Any, discount: Any, entropy_coef: Any = 0.0) -> None:
     """Checks the hyperparameters of one run.
 
+    Each is checked as the float32 that training takes it as (`stack`), by
+    `check_representable`: it must not overflow there, and `learning_rate` and `discount`, which
+    0 is not allowed for, must be normal float32s, not round to 0 or to a subnormal number.
+
     Args:
       learning_rate: must be positive.
       discount: must be in (0, 1].
       entropy_coef: must be at least 0.
 
     Raises:
-      ValueError: naming the first that is not one finite number (`check_number`) in its range.
+      ValueError: naming the first that is not one finite number (`check_number`) in its range,
+        or not one as float32.
     """
     checks = (("learning_rate", learning_rate, lambda v: v > 0, "positive"),
               ("discount", discount, lambda v: 0 < v <= 1, "in (0, 1]"),
@@ -250,6 +267,7 @@ def check_hyperparams(learning_rate: Any, discount: Any, entropy_coef: Any = 0.0
         number = check_number(name, value)
         if not ok(number):
             raise ValueError(f"{name}: must be {allowed}, got {number}")
+        check_representable(name, number, np.float32, positive=not ok(0.0))
 
 
 def _optimizer_factories() -> dict[str, Callable[..., optax.GradientTransformation]]:

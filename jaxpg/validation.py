@@ -5,10 +5,11 @@ argument and says what is allowed. They use numpy only, so that a check runs bef
 compiles anything.
 """
 
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 
 def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = None) -> int:
@@ -73,6 +74,56 @@ def check_finite(name: str, values: Any) -> np.ndarray:
     if not np.isfinite(array).all():
         raise ValueError(f"{name}: must be finite, got NaN or infinity")
     return array
+
+
+def check_representable(name: str, values: Any, dtype: npt.DTypeLike,
+                         positive: bool = False) -> np.ndarray:
+    """`values` in `dtype`; a ValueError naming `name` unless each value means there what it says.
+
+    A number finite as given can overflow to infinity in a narrower float (1e308 in float32).
+    Where it must be positive, it must also be at least the dtype's smallest normal number: below
+    it a value rounds to 0 (1e-300 in float32) or to a subnormal one (1e-40), which keeps a few
+    bits or none, so a time step freezes the cart and a learning rate stops learning.
+
+    Args:
+      name: the argument's name, which the message starts with.
+      values: finite numbers (`check_finite`), of any shape; `inf` for a derived value that
+        overflowed float64 already (`in_float64`).
+      dtype: the float dtype that the computation uses.
+      positive: whether the values are positive ones (0 and negative values pass: the caller
+        refuses them with its own range).
+
+    Returns:
+      `values` in `dtype`.
+    """
+    array = np.asarray(values)
+    info = np.finfo(dtype)
+    with np.errstate(over="ignore", under="ignore"):
+        cast = array.astype(dtype)
+    overflows = ~np.isfinite(cast)
+    if overflows.any():
+        raise ValueError(f"{name}: must be at most {info.max:.4g} in magnitude (the largest "
+                         f"{info.dtype}), got {float(array[overflows].flat[0])!r}")
+    if positive:
+        underflows = (array > 0) & (cast < info.smallest_normal)
+        if underflows.any():
+            raise ValueError(f"{name}: must be at least {info.smallest_normal:.4g} (the smallest "
+                             f"normal {info.dtype}), got {float(array[underflows].flat[0])!r}")
+    return cast
+
+
+def in_float64(operation: Callable[..., Any], *operands: Any) -> np.ndarray:
+    """`operation` of `operands` taken in float64: infinite, without a warning, where it overflows.
+
+    Args:
+      operation: a numpy function or operator, such as `np.multiply`.
+      *operands: numbers or arrays.
+
+    Returns:
+      The result, a float64 array, for `check_representable` to check in a narrower dtype.
+    """
+    with np.errstate(over="ignore"):
+        return np.asarray(operation(*(np.asarray(x, np.float64) for x in operands)))
 
 
 def check_choice(name: str, value: Any, allowed: Collection[str], what: str = "") -> str:

@@ -374,8 +374,36 @@ def test_stratified_improvement_interval_misses_equal_settings_on_paired_tasks()
     (lambda: stats.seeds_needed([np.ones(4), np.ones(6)], paired=True),
      r"scores\[1\]: paired with scores\[0\]"),
     (lambda: stats.performance_profile([1.0, 2.0], paired=1), "paired"),
+    (lambda: stats.improvement_ci([1.0, 2.0], [1e308, 0.0]), "y: magnitudes must be at most"),
+    (lambda: stats.seeds_needed([[1.0, 2.0], [-1e308, 1.0]]), r"scores\[1\]: magnitudes"),
 ])
 def test_bad_input_is_one_line_naming_the_argument(call, word):
     with pytest.raises(ValueError, match=f"^{word}") as error:
         call()
     assert "\n" not in str(error.value)
+
+
+# The bound of 4 scores: float64's largest over 8 * 4, 1.7977e308 / 32 = 5.618e306.
+BOUND_OF_4 = np.finfo(np.float64).max / 32
+
+
+@pytest.mark.parametrize("statistic", ["iqm", "mean", "median"])
+def test_scores_at_the_bound_give_finite_intervals_and_larger_ones_are_refused(statistic):
+    """Values near float64's largest would sum to infinity: a statistic of them was NaN."""
+    at_bound = BOUND_OF_4 * np.array([1.0, -1.0, 1.0, -1.0])
+    assert np.all(np.isfinite(stats.bootstrap_ci(at_bound, statistic, reps=200)))
+    assert np.all(np.isfinite(stats.bootstrap_ci(np.abs(at_bound), statistic, reps=200)))
+    beyond = np.nextafter(BOUND_OF_4, np.inf) * np.array([1.0, -1.0, 1.0, -1.0])
+    with pytest.raises(ValueError, match=r"^scores: magnitudes must be at most 5\.618e\+306 for 4 "
+                       r"scores, so that the statistics' sums cannot overflow, got 5\.6177"):
+        stats.bootstrap_ci(beyond, statistic, reps=200)
+    with pytest.raises(ValueError, match=r"^scores: .* got 1e\+308$"):
+        stats.bootstrap_ci([1e308, -1e308, 1e308, -1e308], statistic)
+
+
+def test_an_aggregate_along_an_axis_bounds_the_scores_it_takes_together():
+    scores = np.full((4, 2), BOUND_OF_4)  # 4 scores per task, 8 in all
+    # 4 * BOUND_OF_4 / 4: scaled by powers of 2, exact.
+    np.testing.assert_array_equal(stats.mean(scores, axis=0), [BOUND_OF_4, BOUND_OF_4])
+    with pytest.raises(ValueError, match="^scores: magnitudes must be at most 2.809e\\+306 for 8 "):
+        stats.mean(scores)  # 1.7977e308 / 64 = 2.809e306

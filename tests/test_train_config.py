@@ -1,6 +1,8 @@
 """TrainConfig: bad settings are refused before compiling; any optax optimizer by name."""
 
 
+import flax.linen as nn
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
@@ -8,9 +10,15 @@ import pytest
 
 from jaxpg import (
     TrainConfig,
+    cartpole,
     train,
 )
+from jaxpg.sweeps import expand_grid
 from jaxpg.train_config import OPTIMIZERS, steps_on_gradients
+
+# What float32 holds: the largest magnitude, 3.403e38, and the smallest normal number, 1.175e-38.
+TOO_LARGE = r"must be at most 3\.403e\+38 in magnitude \(the largest float32\)"
+TOO_SMALL = r"must be at least 1\.175e-38 \(the smallest normal float32\)"
 
 
 @pytest.mark.parametrize("field, value, match", [
@@ -32,6 +40,27 @@ from jaxpg.train_config import OPTIMIZERS, steps_on_gradients
     ("entropy_coef", np.array([0.0]), "entropy_coef: must be a number"),
     ("optimizer", "lbfgs", "optimizer: cannot train with 'lbfgs'"),
     ("hidden", 5, "hidden: must be a tuple of positive layer sizes"),
+    # Numbers that float32, the dtype training takes them in, cannot hold.
+    ("learning_rate", 1e300, f"learning_rate: {TOO_LARGE}, got 1e\\+300$"),
+    ("learning_rate", 1e-300, f"learning_rate: {TOO_SMALL}, got 1e-300$"),  # 0 in float32
+    ("learning_rate", 1e-40, f"learning_rate: {TOO_SMALL}"),  # subnormal in float32
+    ("discount", 1e-300, f"discount: {TOO_SMALL}"),
+    ("entropy_coef", 1e39, f"entropy_coef: {TOO_LARGE}"),
+    ("env", cartpole.CartPoleParams(length=1e308), f"length: {TOO_LARGE}, got 1e\\+308$"),
+    ("env", cartpole.CartPoleParams(tau=1e-300), f"tau: {TOO_SMALL}"),
+    ("env", cartpole.CartPoleParams(masspole=1e30, length=1e10),
+     f"masspole \\* length: {TOO_LARGE}, got 1e\\+40$"),
+    ("randomize", {"length": (0.3, 1e39)}, f"length: {TOO_LARGE}"),
+    ("randomize", {"tau": (1e-300, 0.02)}, f"tau: {TOO_SMALL}"),
+    # Each bound is held, but a draw scales by the width, 6e38.
+    ("randomize", {"gravity": (-3e38, 3e38)}, f"gravity \\(high - low\\): {TOO_LARGE}"),
+    # Wrong kinds of randomize.
+    ("randomize", 5, "randomize: expected a dict {field: \\(low, high\\)} or"),
+    ("randomize", None, "randomize: expected a dict"),
+    ("randomize", "length", "randomize: expected a dict"),
+    ("randomize", [("length",)], "randomize: expected a dict"),
+    ("randomize", [("length", (0.3, 0.6)), ("length", (0.4, 0.5))],
+     "randomize: length is given two ranges; give each field one$"),
 ])
 def test_bad_config_is_rejected_before_compiling(field, value, match):
     with pytest.raises(ValueError, match=f"^{match}"):
@@ -68,3 +97,74 @@ def test_any_optax_optimizer_by_name():
     result = train(TrainConfig(iterations=2, episodes=2, max_steps=10, optimizer="sgd",
                                hidden=(3, 3), activation="tanh"), seed=0, show_progress=False)
     assert np.all(np.isfinite(result.metrics.loss))
+
+
+def test_zero_is_allowed_where_a_value_underflows_to_it_and_the_smallest_normal_float32_is():
+    smallest = float(np.finfo(np.float32).smallest_normal)
+    config = TrainConfig(entropy_coef=1e-300, learning_rate=smallest, discount=smallest)
+    assert config.hyperparams.per_run().entropy_coef == 0
+
+
+def test_physics_are_checked_in_jax_default_float_and_hyperparameters_in_float32():
+    """With jax_enable_x64 the physics compute in float64, which holds 1e-300; the optimizer's
+    settings stay float32."""
+    with jax.enable_x64(True):
+        assert TrainConfig(env=cartpole.CartPoleParams(tau=1e-300)).env_params.tau == 1e-300
+        with pytest.raises(ValueError, match=f"^learning_rate: {TOO_SMALL}"):
+            TrainConfig(learning_rate=1e-300)
+
+
+def test_randomize_takes_lists_as_pairs_and_keeps_them_sorted():
+    config = TrainConfig(randomize=[["tau", [0.01, 0.02]], ("length", (0.3, 0.6))])
+    assert config.randomize == (("length", (0.3, 0.6)), ("tau", (0.01, 0.02)))
+
+
+@pytest.mark.parametrize("grid, match", [
+    ({"length": [0.5, 1e39]}, f"length: {TOO_LARGE}"),
+    ({"tau": [0.02, 1e-300]}, f"tau: {TOO_SMALL}"),
+    ({"masspole": [1e30], "length": [1e10]}, f"masspole \\* length: {TOO_LARGE}"),
+    ([{"learning_rate": 1e-300}], f"learning_rate: {TOO_SMALL}"),
+    ([{"entropy_coef": 1e39}], f"entropy_coef: {TOO_LARGE}"),
+])
+def test_grid_values_that_float32_cannot_hold_are_refused(grid, match):
+    with pytest.raises(ValueError, match=f"^{match}"):
+        expand_grid(TrainConfig(), grid)
+
+
+class IntegerLogits(nn.Module):
+    """A policy whose logits are int32."""
+
+    @nn.compact
+    def __call__(self, obs):
+        return nn.Dense(1)(obs)[..., 0].astype(jnp.int32)
+
+
+def _updates_as_a_list(learning_rate):
+    """SGD whose update returns the updates' leaves as a list, not the parameters' tree."""
+    sgd = optax.sgd(learning_rate)
+    return optax.GradientTransformation(
+        sgd.init, lambda grads, state, params=None: (jax.tree.leaves(grads), state))
+
+
+def _updates_alone(learning_rate):
+    """SGD whose update returns the updates without the state."""
+    sgd = optax.sgd(learning_rate)
+    return optax.GradientTransformation(
+        sgd.init, lambda grads, state, params=None: sgd.update(grads, state, params)[0])
+
+
+@pytest.mark.parametrize("fields, match", [
+    ({"policy": IntegerLogits()}, "policy: the module's logits must be floating, got int32$"),
+    ({"optimizer": _updates_as_a_list},
+     "optimizer: its update must return updates of the parameters' tree and shapes, "),
+    ({"optimizer": _updates_as_a_list, "loss": "baseline"},
+     r"optimizer: its update must return updates of the parameters' tree and shapes, "
+     r"\{'critic': .*, 'policy': .*\}, got \[\(.*\)\]$"),
+    ({"optimizer": _updates_alone, "loss": "baseline"},
+     r"optimizer: its update must return \(updates, state\), got dict$"),
+])
+def test_a_policy_or_optimizer_of_the_wrong_kind_is_named_before_compiling(fields, match):
+    config = TrainConfig(iterations=1, episodes=1, max_steps=2, **fields)
+    with pytest.raises(ValueError, match=f"^{match}") as error:
+        train(config, seed=0, show_progress=False)
+    assert "\n" not in str(error.value)

@@ -1,7 +1,18 @@
+import warnings
+
 import numpy as np
 import pytest
 
-from jaxpg.validation import check_choice, check_finite, check_int, check_number
+from jaxpg.validation import (
+    check_choice,
+    check_finite,
+    check_int,
+    check_number,
+    check_representable,
+    in_float64,
+)
+
+F32 = np.finfo(np.float32)
 
 
 @pytest.mark.parametrize("value", [0, 7, np.int64(7), np.uint32(2**32 - 1)])
@@ -58,3 +69,47 @@ def test_a_choice_outside_the_allowed_names_them_all():
         check_choice("env", "v2", ("a", "b"), "preset")
     with pytest.raises(ValueError, match=r"^backend: unknown \['jaxpg'\]; allowed: jaxpg$"):
         check_choice("backend", ["jaxpg"], ("jaxpg",))
+
+
+@pytest.mark.parametrize(("value", "positive"), [
+    (0.02, True), (-3e38, False), (float(F32.max), False), (float(F32.smallest_normal), True),
+    (1e-300, False),  # underflows to 0, which a field that may be 0 allows
+    (0.0, True), (-1e-300, True),  # not positive: the caller's own range refuses them
+    (np.array([[0.5, 2.0]]), True),
+])
+def test_values_that_float32_holds_pass_converted(value, positive):
+    got = check_representable("tau", value, np.float32, positive)
+    assert got.dtype == np.float32 and got.shape == np.shape(value)
+    np.testing.assert_array_equal(got, np.asarray(value, np.float32))
+
+
+@pytest.mark.parametrize(("value", "positive", "message"), [
+    (1e308, False, r"^tau: must be at most 3\.403e\+38 in magnitude \(the largest float32\), "
+     r"got 1e\+308$"),
+    (-1e39, False, r"^tau: must be at most .* got -1e\+39$"),
+    (np.inf, False, r"^tau: must be at most .* got inf$"),  # a sum that overflowed float64
+    (np.array([0.5, 4e38]), False, r"got 4e\+38$"),  # the first value at fault
+    (1e-300, True, r"^tau: must be at least 1\.175e-38 \(the smallest normal float32\), "
+     r"got 1e-300$"),  # 0 in float32
+    (1e-40, True, r"^tau: must be at least 1\.175e-38 .* got 1e-40$"),  # subnormal in float32
+])
+def test_values_that_overflow_or_underflow_float32_are_one_line_errors(value, positive, message):
+    with pytest.raises(ValueError, match=message):
+        check_representable("tau", value, np.float32, positive)
+
+
+def test_the_smallest_normal_float32_is_the_bound_and_float64_holds_what_float32_cannot():
+    below = np.nextafter(F32.smallest_normal, np.float32(0))  # the largest subnormal float32
+    with pytest.raises(ValueError, match="smallest normal float32"):
+        check_representable("lr", below, np.float32, positive=True)
+    assert check_representable("lr", 1e-300, np.float64, positive=True) == 1e-300
+    assert check_representable("lr", 1e308, np.float64) == 1e308
+
+
+def test_derived_values_overflow_float64_to_infinity_without_a_warning():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        product = in_float64(np.multiply, np.float64(1e200), 1e200)
+        difference = in_float64(np.subtract, 3e38, -3e38)
+    assert product == np.inf and product.dtype == np.float64
+    assert difference == 6e38  # 2 * 3e38: exact in float64, beyond float32's 3.4e38
