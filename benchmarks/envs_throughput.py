@@ -1,0 +1,238 @@
+"""Classic-control environment steps per second with random actions, jaxpg against its peers.
+
+For each of Acrobot-v1, MountainCar-v0, Pendulum-v1 and MountainCarContinuous-v0 (`jaxpg.envs`),
+and N environments stepped together with auto-reset:
+
+- jaxpg: `lax.scan` over T steps of `vmap(step)`, jitted; one program per (env, N, T) whose scan
+  length T is chosen so that a run takes about `--seconds` (or fixed with `--steps`); compile
+  time is reported apart. Random actions (uniform over the actions, or over [ACTION_LOW,
+  ACTION_HIGH]) are drawn inside the program and so are counted, and so are the reset states,
+  drawn for every environment on every step and taken where an episode ended, as gymnax's
+  auto-reset does.
+- gymnax (when importable): the same id with `vmap` over environments and `lax.scan` over time;
+  the auto-reset is gymnax's own `step`, the actions its action space's `sample`, inside the
+  program as for jaxpg.
+- gymnasium-vector: `gymnasium.make_vec(id, N, vectorization_mode="sync")` (Gymnasium has no
+  numpy vector env of these four), auto-resetting in its default next-step mode. Actions for all
+  N environments are drawn with one `action_space.sample()` per step, outside the timed region:
+  only `env.step` is timed. It always runs for about `--seconds`.
+
+    python benchmarks/envs_throughput.py            # full run, ~1 s per measurement
+    python benchmarks/envs_throughput.py --quick    # a quick check that everything runs
+    python benchmarks/envs_throughput.py --steps 256 --seconds 0.2 --repeats 1   # small settings
+"""
+
+import argparse
+import time
+
+import common
+import env_throughput  # its timing and ratios; it also gives JAX one CPU device per core
+import gymnasium as gym
+import jax
+import jax.numpy as jnp
+
+from jaxpg.envs import MODULES
+
+IMPLS = ("jaxpg", "gymnax", "gymnasium-vector")
+
+
+# ---------------------------------------------------------------- programs that step N envs T times
+
+
+def random_actions(module, key, num_envs):
+    """`[N]` random actions of `module`: uniform over its discrete actions or its action range."""
+    if hasattr(module, "NUM_ACTIONS"):
+        return jax.random.randint(key, (num_envs,), 0, module.NUM_ACTIONS)
+    return jax.random.uniform(key, (num_envs,), minval=module.ACTION_LOW,
+                              maxval=module.ACTION_HIGH)
+
+
+def where_done(done, fresh, stepped):
+    """The state `fresh` where `done` `[N]`, else `stepped` (leaves `[N, ...]`)."""
+    return jax.tree.map(
+        lambda new, old: jnp.where(done.reshape(done.shape + (1,) * (old.ndim - 1)), new, old),
+        fresh, stepped)
+
+
+def scan_program(reset_all, step_all, num_steps):
+    """`key -> (states, total reward)`: T steps of N environments under `lax.scan`, jitted.
+
+    The states are returned so that XLA computes them (MountainCar's rewards alone are -1 and do
+    not need them).
+
+    Args:
+      reset_all: `key -> states` of the N environments.
+      step_all: `(states, key) -> (states, rewards [N])`, actions drawn from `key`.
+      num_steps: T.
+    """
+    def program(key):
+        key_reset, key_steps = jax.random.split(key)
+
+        def one_step(carry, step_key):
+            state, total = carry
+            state, reward = step_all(state, step_key)
+            return (state, total + reward.sum()), None
+
+        carry, _ = jax.lax.scan(one_step, (reset_all(key_reset), jnp.zeros(())),
+                                jax.random.split(key_steps, num_steps))
+        return carry
+
+    return jax.jit(program)
+
+
+def jaxpg_program(module, num_envs, num_steps):
+    """N auto-resetting envs of `module`, T random steps (`scan_program`)."""
+    env_params = module.PRESETS[module.NAME]
+    reset = jax.vmap(module.reset, in_axes=(0, None))
+    step = jax.vmap(module.step, in_axes=(0, 0, None))
+
+    def reset_all(key):
+        return reset(jax.random.split(key, num_envs), env_params)[1]
+
+    def step_all(state, key):
+        key_action, key_reset = jax.random.split(key)
+        action = random_actions(module, key_action, num_envs)
+        _, stepped, reward, terminated, truncated = step(state, action, env_params)
+        return where_done(terminated | truncated, reset_all(key_reset), stepped), reward
+
+    return scan_program(reset_all, step_all, num_steps)
+
+
+def gymnax_program(gymnax, env_id, num_envs, num_steps):
+    """N gymnax envs, whose `step` auto-resets, T random steps (`scan_program`)."""
+    env, env_params = gymnax.make(env_id)
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    sample = jax.vmap(env.action_space(env_params).sample)
+
+    def reset_all(key):
+        return reset(jax.random.split(key, num_envs), env_params)[1]
+
+    def step_all(state, key):
+        key_action, key_env = jax.random.split(key)
+        action = sample(jax.random.split(key_action, num_envs))
+        # gymnax 1.x returns (obs, state, reward, terminated, truncated, info)
+        outputs = step(jax.random.split(key_env, num_envs), state, action, env_params)
+        return outputs[1], outputs[2]
+
+    return scan_program(reset_all, step_all, num_steps)
+
+
+def vector_env_block(env, block):
+    """A Gymnasium vector env: a function stepping it `block` times, timing only `step`."""
+    env.reset(seed=0)
+    env.action_space.seed(0)
+
+    def step_block():
+        elapsed = 0.0
+        for _ in range(block):
+            action = env.action_space.sample()
+            start = time.perf_counter()
+            env.step(action)
+            elapsed += time.perf_counter() - start
+        return elapsed
+
+    return step_block, block
+
+
+# ---------------------------------------------------------------- measuring
+
+
+def measure(impl, env_id, num_envs, args, gymnax):
+    module = MODULES[env_id]
+    if impl == "jaxpg":
+        return env_throughput.measure_jax(
+            lambda n, t: jaxpg_program(module, n, t), num_envs, args)
+    if impl == "gymnax":
+        return env_throughput.measure_jax(
+            lambda n, t: gymnax_program(gymnax, env_id, n, t), num_envs, args)
+    if impl == "gymnasium-vector":
+        env = gym.make_vec(env_id, num_envs, vectorization_mode="sync")
+        loop_args = argparse.Namespace(**{**vars(args), "steps": 0})  # always --seconds
+        return env_throughput.measure_loop(*vector_env_block(env, max(1, 256 // num_envs)),
+                                           num_envs=num_envs, args=loop_args)
+    raise ValueError(impl)
+
+
+# ---------------------------------------------------------------- main
+
+
+def parse_args():
+    parser = argparse.ArgumentParser(
+        description="Classic-control env steps per second, random actions")
+    parser.add_argument("--quick", action="store_true",
+                        help="short measurements (0.1 s, 1 repeat) to check that all runs")
+    parser.add_argument("--envs", default=",".join(MODULES),
+                        help=f"comma-separated subset of {', '.join(MODULES)}")
+    parser.add_argument("--sizes", default="1,256,4096",
+                        help="comma-separated numbers of environments N")
+    parser.add_argument("--impls", default=",".join(IMPLS),
+                        help=f"comma-separated subset of {', '.join(IMPLS)}")
+    parser.add_argument("--seconds", type=float, default=1.0,
+                        help="target seconds per measured run (default 1.0)")
+    parser.add_argument("--steps", type=int, default=0,
+                        help="steps per env per run of the JAX programs instead of the "
+                             "--seconds target (Gymnasium's loop always runs for --seconds)")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per measurement (median)")
+    args = parser.parse_args()
+    if args.quick:
+        args.seconds, args.repeats = 0.1, 1
+    args.sizes = [int(n) for n in args.sizes.split(",")]
+    args.envs, args.impls = args.envs.split(","), args.impls.split(",")
+    for option, chosen, allowed in (("--envs", args.envs, MODULES), ("--impls", args.impls,
+                                                                      IMPLS)):
+        unknown = set(chosen) - set(allowed)
+        if unknown:
+            parser.error(f"{option}: unknown {', '.join(sorted(unknown))}; allowed: "
+                         f"{', '.join(allowed)}")
+    if any(n < 1 for n in args.sizes):
+        parser.error("--sizes: every N must be a positive integer")
+    return args
+
+
+def main():
+    args = parse_args()
+    common.print_header("Classic-control environment throughput, random actions, auto-reset")
+    gymnax = None
+    if "gymnax" in args.impls:
+        gymnax = common.optional_import("gymnax", env_throughput.GYMNAX_HINT)
+    rows = []
+    for env_id in args.envs:
+        for impl in args.impls:
+            if impl == "gymnax" and gymnax is None:
+                continue
+            for num_envs in args.sizes:
+                row = {"env": env_id, "impl": impl,
+                       **measure(impl, env_id, num_envs, args, gymnax)}
+                rows.append(row)
+                print(f"{env_id:>24}  {impl:>16}  N={num_envs:<6}  "
+                      f"{row['steps_per_s']:>14,.0f} steps/s", flush=True)
+
+    columns = ["env", "impl", "n", "steps_per_env", "steps", "run_s", "steps_per_s", "lower_s",
+               "compile_s"]
+    common.print_table(rows, columns, title="steps/s (median run; compile timed apart)")
+    summaries = {}
+    for env_id in args.envs:
+        env_rows = [row for row in rows if row["env"] == env_id]
+        ran = {row["impl"] for row in env_rows}
+        print(f"\n{env_id}")
+        summaries[env_id] = [env_throughput.ratios(env_rows, "jaxpg", peer)
+                             for peer in ("gymnasium-vector", "gymnax")
+                             if "jaxpg" in ran and peer in ran]
+        for summary in summaries[env_id]:
+            env_throughput.print_ratios(summary)
+    path = common.write_results(
+        "envs_throughput", args, rows, ratios=summaries,
+        notes={
+            "jaxpg, gymnax": "random actions and reset states drawn inside the compiled program "
+                             "(counted)",
+            "gymnasium-vector": "actions drawn per step outside the timed region",
+        },
+    )
+    common.write_chart([{**row, "impl": f"{row['impl']} {row['env']}"} for row in rows], path,
+                       "Classic-control env steps/s (random actions)",
+                       xlabel="N (environments)")
+
+
+if __name__ == "__main__":
+    main()
