@@ -7,9 +7,8 @@ from jaxpg.evaluation import EvalResult, evaluate, robustness
 from jaxpg.executables import keep_programs
 from jaxpg.iteration import Metrics, TrainResult
 from jaxpg.policies import basic_policy
-from jaxpg.reinforce import train
 from jaxpg.returns import discount_and_normalize_rewards, discount_rewards
-from jaxpg.sweeps import SweepResult, sweep
+from jaxpg.sweeps import SweepResult, sweep, train
 from jaxpg.train_config import Hyperparams, TrainConfig
 
 gym.register()

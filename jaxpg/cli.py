@@ -142,6 +142,10 @@ def _add_training_args(parser: argparse.ArgumentParser) -> None:
                         "(default 5)")
     parser.add_argument("--loss", choices=list(BUILT_IN), default=d.loss,
                         help="(default %(default)s)")
+    parser.add_argument("--epochs", type=int, default=d.epochs,
+                        help="passes over each update's episodes (default %(default)s)")
+    parser.add_argument("--minibatches", type=int, default=d.minibatches,
+                        help="minibatches of whole episodes per pass (default %(default)s)")
     parser.add_argument("--activation", default=d.activation,
                         help="hidden activation (default %(default)s)")
     parser.add_argument("--env", default=d.env,
@@ -166,6 +170,8 @@ def _config(args: argparse.Namespace, **hyperparams: Any) -> "TrainConfig":
         activation=args.activation,
         optimizer=args.optimizer,
         loss=args.loss,
+        epochs=args.epochs,
+        minibatches=args.minibatches,
         env=args.env,
         randomize=_physics_settings(args)[1],
         solved_return=args.solved_return,
@@ -295,8 +301,8 @@ def cmd_train(args: argparse.Namespace) -> None:
       ValueError: a bad argument, before anything is written or compiled.
     """
     from jaxpg import atomic_files, budget, checkpoint, plots
-    from jaxpg.reinforce import first_nonfinite, train
-    from jaxpg.sweeps import last_mean
+    from jaxpg.reinforce import first_nonfinite
+    from jaxpg.sweeps import last_mean, train
 
     config = _config(args, learning_rate=args.lr, discount=args.discount,
                      entropy_coef=args.entropy_coef)
@@ -638,8 +644,7 @@ def cmd_reproduce(args: argparse.Namespace) -> None:
     """
     from jaxpg import policies, returns
     from jaxpg.evaluation import evaluate, gymnasium_reset_states
-    from jaxpg.reinforce import train
-    from jaxpg.sweeps import last_mean
+    from jaxpg.sweeps import last_mean, train
     from jaxpg.train_config import TrainConfig
 
     check_int("seed", args.seed, 0, 2**32)

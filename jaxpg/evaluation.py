@@ -425,8 +425,8 @@ def robustness(
       episodes: E, a positive integer.
       max_steps: the longest an episode may run, a positive integer.
       seed: a non-negative integer; every cell plays the episodes of `PRNGKey(seed)`.
-      network: the policy module of the parameters (`TrainConfig.network`); by default the
-        default network, `policies.PolicyNetwork()`.
+      network: the policy module of the parameters (`TrainConfig.network`); by default a
+        `SweepResult`'s own, else the default network, `policies.PolicyNetwork()`.
       env: a preset name or a `CartPoleParams`: the physics that the settings modify.
 
     Returns:
@@ -442,6 +442,8 @@ def robustness(
     check_int("seed", seed, 0, 2**32)
     env_params, _ = resolve_env(env)
     settings = physics_settings(env_grid, env_params)
+    if network is None and isinstance(policies, sweeps.SweepResult) and policies.config:
+        network = policies.config.network
     network = PolicyNetwork() if network is None else network
     function, policy_params = _split_policies(policies, network)
     grid_shape = (1, 1) if function else jax.tree.leaves(policy_params)[0].shape[:2]

@@ -215,16 +215,17 @@ class Stored:
       jitted: a `jax.jit` function of arrays only.
       name: a name for its files.
       settings: what tells apart the functions that share `name`, by its `repr`.
-      keep: False for a function whose `settings` do not tell all that decides its programs (code
-        of the user's, known by name only): its programs are compiled ahead as others, never kept.
+      by_code: True for a function whose `settings` do not tell all that decides its programs
+        (code of the user's, known by name only): its programs are kept under the digest of
+        their lowered code too, so a later process traces and lowers them to find them.
     """
 
     def __init__(self, jitted: jax.stages.Wrapped, name: str, settings: object,
-                 keep: bool = True) -> None:
+                 by_code: bool = False) -> None:
         self._jitted = jitted
         self._name = name
         self._settings = repr(settings)
-        self._may_keep = keep
+        self._by_code = by_code
         # (directory, argument signature) -> Future of the program
         self._programs: dict[Signature, concurrent.futures.Future[Program]] = {}
         self._lock = threading.Lock()
@@ -312,13 +313,15 @@ class Stored:
         Compiled on a thread when `ahead`. For arguments on several devices, the jitted function
         itself, whose programs are neither compiled ahead nor kept.
         """
-        device, file = _device(signature), self._file(signature)
+        device = _device(signature)
         if device is None:
             return _done(self._jitted)
+        lowered = self._jitted.lower(*args) if self._by_code else None
+        file = self._file(signature, None if lowered is None else lowered.as_text())
         compiled = self._load(device, file)
         if compiled is not None:
             return _done(compiled)
-        lowered = self._jitted.lower(*args)
+        lowered = lowered or self._jitted.lower(*args)
 
         def compile_and_keep() -> jax.stages.Compiled:
             compiled, fresh = _compile(lowered)
@@ -328,16 +331,19 @@ class Stored:
 
         return _compiler().submit(compile_and_keep) if ahead else _done(compile_and_keep())
 
-    def _file(self, signature: Signature) -> ProgramFile | None:
+    def _file(self, signature: Signature, code: str | None = None) -> ProgramFile | None:
         """The file that keeps the program for `signature`, and the sha256 of the program's key.
 
-        None while no programs are kept, or for a function whose programs are never kept.
+        None while no programs are kept, or for a function kept `by_code` without its `code`
+        (its lowered text).
         """
         directory, tree, leaves = signature
-        if directory is None or not self._may_keep:
+        if directory is None or (self._by_code and code is None):
             return None
         arguments = [(shape, str(dtype), str(sharding)) for shape, dtype, sharding in leaves]
-        key = repr((self._name, self._settings, str(tree), arguments, _environment()))
+        # Kept by code, the settings' text is left out: it may name objects by their addresses.
+        decides = code if self._by_code else self._settings
+        key = repr((self._name, decides, str(tree), arguments, _environment()))
         digest = hashlib.sha256(key.encode()).hexdigest()
         return directory / f"{self._name}-{digest[:40]}.xla", digest
 

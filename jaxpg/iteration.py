@@ -78,11 +78,14 @@ class TrainResult(NamedTuple):
       policy_params: the final policy parameters, leading axis `[R]` for several runs.
       metrics: `Metrics`, `[I]` leaves, or `[R, I]` for several runs.
       evaluation: the held-out `Evaluation` of the final policy, or None where none was asked for.
+      critic_params: the final parameters of a loss's critic (`losses.critic`), as
+        `policy_params`; None for a loss without one.
     """
 
     policy_params: Params
     metrics: Metrics
     evaluation: "Evaluation | None" = None
+    critic_params: Params | None = None
 
 
 def is_run_alone(train_state: TrainState) -> bool:
@@ -108,29 +111,9 @@ def global_norm(tree: Params) -> Array:
 
 
 
-# Optimizers that update each parameter from its own history alone. They step a run's parameters
-# as the one vector they are kept in, in a few kernels; any other optimizer steps each parameter
-# array as optax defines it (lamb's and lars's trust ratios, adafactor's factored moments, ...).
-# `tests/test_reinforce.py` checks every name here against the per-array update.
-ELEMENTWISE_OPTIMIZERS = frozenset({
-    "adabelief", "adadelta", "adagrad", "adam", "adamax", "adamaxw", "adamw", "adan", "amsgrad",
-    "lion", "optimistic_adam_v2", "optimistic_gradient_descent", "radam", "rmsprop", "rprop", "sgd",
-    "sign_sgd", "signum", "yogi",
-})
-
-
-def _optimizer_view(config: TrainConfig) -> tuple[Callable[[Array], Any], Callable[[Any], Array]]:
-    """(to, back): a run's flat parameters `[P]` (or gradient) as its optimizer takes them."""
-    if config.optimizer in ELEMENTWISE_OPTIMIZERS:
-        return (lambda flat: flat), (lambda flat: flat)
-    network = cast(policies.PolicyNetwork, config.network)  # the fast path's
-    return (functools.partial(policies.unflatten, network=network),
-            functools.partial(policies.flatten, network=network))
-
-
 def init_run(
     config: TrainConfig, key: PRNGKey, hyperparams: Hyperparams,
-    policy_params: Params | None = None,
+    policy_params: Params | None = None, critic_params: Params | None = None,
 ) -> tuple[Params, optax.OptState]:
     """The initial parameters and optimizer state of one run.
 
@@ -144,6 +127,7 @@ def init_run(
       hyperparams: the run's `Hyperparams`, scalars.
       policy_params: optional: one run's policy parameters, as `policies.init_network` gives
         them, to start the policy from.
+      critic_params: optional: one run's critic parameters, to start a loss's critic from.
 
     Returns:
       (params, opt_state) of the run.
@@ -155,17 +139,18 @@ def init_run(
     optimizer = make_optimizer(config, hyperparams.learning_rate)
     if config.hand_gradient:
         flat = policies.flatten(policy_params, cast(policies.PolicyNetwork, network))
-        to_optimizer, _ = _optimizer_view(config)
-        return flat, optimizer.init(to_optimizer(flat))
+        return flat, optimizer.init(flat)
     params = {"policy": policy_params}
     critic = losses.critic(config.loss)
     if critic is not None:
-        params["critic"] = policies.init_network(jax.random.fold_in(key_init, 1), critic)
+        params["critic"] = (policies.init_network(jax.random.fold_in(key_init, 1), critic)
+                            if critic_params is None else critic_params)
     return params, {name: optimizer.init(leaves) for name, leaves in params.items()}
 
 
 def init_runs(config: TrainConfig, keys: PRNGKey, hyperparams: Hyperparams,
-              policy_params: Params | None = None) -> TrainState:
+              policy_params: Params | None = None,
+              critic_params: Params | None = None) -> TrainState:
     """The initial `TrainState` of R runs.
 
     Args:
@@ -173,12 +158,14 @@ def init_runs(config: TrainConfig, keys: PRNGKey, hyperparams: Hyperparams,
       keys: uint32 `[R, 2]`, the runs' keys.
       hyperparams: `Hyperparams` with `[R]` leaves.
       policy_params: optional: one run's policy parameters, which every run's policy starts from.
+      critic_params: optional: one run's critic parameters, which every run's critic starts from.
 
     Returns:
       `TrainState` of the R runs, run axes last (keys `[R, 2]`).
     """
     params, opt_state = jax.vmap(
-        lambda key, hyper: init_run(config, key, hyper, policy_params), out_axes=-1)(
+        lambda key, hyper: init_run(config, key, hyper, policy_params, critic_params),
+        out_axes=-1)(
         keys, hyperparams)
     return TrainState(params, opt_state, jax.vmap(lambda k: jax.random.split(k)[0])(keys))
 
@@ -197,11 +184,9 @@ def optimizer_step(config: TrainConfig, grads: Array, opt_state: optax.OptState,
     Returns:
       (policy_params `[P]`, opt_state) after the step.
     """
-    to_optimizer, back = _optimizer_view(config)
-    params = to_optimizer(policy_params)
     updates, opt_state = make_optimizer(config, learning_rate).update(
-        to_optimizer(grads), opt_state, params)
-    return back(optax.apply_updates(params, updates)), opt_state
+        grads, opt_state, policy_params)
+    return optax.apply_updates(policy_params, updates), opt_state
 
 
 def iterate(config: TrainConfig, train_state: TrainState,
@@ -226,6 +211,9 @@ def iterate(config: TrainConfig, train_state: TrainState,
             config.episodes)
         env_params = _randomized(config.randomize, env_params, key_physics[0] if alone
                                  else key_physics, num_episodes)
+    key_minibatches = key_rollout  # unused with one minibatch: drawn only for several
+    if config.minibatches > 1:
+        key_rollout, key_minibatches = rng.split(key_rollout)
 
     # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
     # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
@@ -239,9 +227,10 @@ def iterate(config: TrainConfig, train_state: TrainState,
             jax.tree.map(lambda leaf: jnp.expand_dims(leaf, 2), episodes.transitions),
             episodes.returns[:, None], episodes.lengths[:, None])
 
-    learn = _learn_by_hand if config.hand_gradient else _learn
+    learn: Callable[..., tuple[Params, optax.OptState, Array, Array, dict[str, Any]]] = (
+        _learn_by_hand if config.hand_gradient else _learn)
     new_params, opt_state, loss, grad_norm, extra = learn(
-        config, train_state, episodes.transitions, hyperparams, alone)
+        config, train_state, episodes.transitions, hyperparams, key_minibatches)
     metrics = Metrics(
         mean_return=episodes.returns.mean(axis=0),
         min_return=episodes.returns.min(axis=0),
@@ -256,12 +245,8 @@ def iterate(config: TrainConfig, train_state: TrainState,
 
 def _physics(config: TrainConfig, hyperparams: Hyperparams,
              alone: bool) -> cartpole.CartPoleParams:
-    """The runs' physics: the config's, compiled in, or each run's.
-
-    Each run's physics have `[R]` leaves, scalars for a run alone.
-    """
-    if hyperparams.env is None:
-        return config.env_params
+    """Each run's physics: `[R]` leaves, scalars for a run alone."""
+    del config
     return _without_run_axis(hyperparams.env) if alone else hyperparams.env
 
 
@@ -345,10 +330,10 @@ def _policy(config: TrainConfig, params: Params, alone: bool) -> Policy:
 
 def _learn_by_hand(
     config: TrainConfig, train_state: TrainState, transitions: rollout.Transition,
-    hyperparams: Hyperparams, alone: bool,
+    hyperparams: Hyperparams, keys: PRNGKey,
 ) -> tuple[Array, optax.OptState, Array, Array, dict[str, Values]]:
     """The fast path's step: the book's loss and its gradient by `hand_gradient.loss_and_grad`."""
-    del alone  # the gradient takes a run alone apart itself
+    del keys  # one step on all the episodes
     network = cast(policies.PolicyNetwork, config.network)
     # Discounted returns, normalised over every step of every episode of a run.
     advantages = returns.discount_and_normalize_masked(
@@ -373,9 +358,14 @@ def _learn_by_hand(
 
 def _learn(
     config: TrainConfig, train_state: TrainState, transitions: rollout.Transition,
-    hyperparams: Hyperparams, alone: bool,
-) -> tuple[dict[str, Params], dict[str, optax.OptState], Array, Array, dict[str, Values]]:
-    """Any other policy, loss or optimizer: `learn_run` of every run, by `runwise`."""
+    hyperparams: Hyperparams, keys: PRNGKey,
+) -> tuple[dict[str, Params], dict[str, optax.OptState], Array, Array, dict[str, Array]]:
+    """Any other policy, loss or optimizer: `learn_run` of every run, by `runwise`.
+
+    `runwise` evaluates it with the runs on the last axis, matrix products as multiply-adds and
+    every sum in a fixed order, so a run rounds alike alone (no run axis) and beside others.
+    """
+    alone = is_run_alone(train_state)
     if alone:
         transitions = jax.tree.map(lambda leaf: leaf[:, :, 0], transitions)
         args = _without_run_axis((train_state.params, train_state.opt_state, hyperparams))
@@ -385,51 +375,101 @@ def _learn(
     batch = losses.Batch(
         transitions.obs, transitions.action, transitions.reward, transitions.alive,
         returns.discount_masked(transitions.reward, transitions.alive,
-                                args[2].discount))
+                                cast(Array, args[2].discount)))  # traced
     outs = runwise.runwise(functools.partial(learn_run, config), batched=not alone)(
-        *args[:2], batch, args[2])
+        *args[:2], batch, args[2], keys[0] if alone else keys.T)
     return jax.tree.map(lambda leaf: leaf[..., None], outs) if alone else outs
 
 
 def learn_run(
     config: TrainConfig, params: dict[str, Params], opt_state: dict[str, optax.OptState],
-    batch: losses.Batch, hyper: Hyperparams,
+    batch: losses.Batch, hyper: Hyperparams, key: PRNGKey,
 ) -> tuple[dict[str, Params], dict[str, optax.OptState], Array, Array, dict[str, Array]]:
-    """One run's optimizer step on its loss plus the entropy bonus.
+    """One run's optimizer steps on its loss plus the entropy bonus: `TrainConfig.updates` of them.
 
-    Each network (the policy and a loss's critic) is stepped by its own optimizer.
+    The batch gains what played it (`Batch.log_prob`, `Batch.values`), held fixed; then each
+    epoch steps once per minibatch of whole episodes. Each network (the policy and a loss's
+    critic) is stepped by its own optimizer.
 
     Args:
       config: the `TrainConfig`.
       params: `{"policy": ...}`, with `"critic"` for a loss that has one.
       opt_state: each network's optimizer state, by the same names.
-      batch: the run's episodes, `[T, E]`.
+      batch: the run's episodes, `[T, E]`, without `log_prob` and `values`.
       hyper: the run's `Hyperparams`, scalars.
+      key: the run's key `[2]` for its minibatches, used with several.
 
     Returns:
       (params, opt_state, loss, grad_norm of the policy's gradient, the loss's metrics, with
-      `entropy`, the mean entropy over alive steps, where `config.entropy_coef` is not 0).
+      `entropy`, the mean entropy over alive steps, where `config.entropy_coef` is not 0); the
+      last three averaged over the updates.
     """
     loss_fn = losses.resolve(config.loss)
     apply_fn = _once_per_input(functools.partial(policies.logits, config.network))
-    has_critic = losses.critic(config.loss) is not None
+    critic = losses.critic(config.loss)
+    batch = jax.lax.stop_gradient(batch._replace(
+        log_prob=losses.log_prob(apply_fn(params["policy"], batch.obs), batch.action),
+        values=jnp.zeros_like(batch.reward) if critic is None
+        else cast(Array, critic.apply(params["critic"], batch.obs))))
 
-    def total(params: dict[str, Params]) -> tuple[Array, dict[str, Array]]:
+    def total(params: dict[str, Params], batch: losses.Batch) -> tuple[Array, dict[str, Array]]:
         """The loss plus the entropy bonus, and the metrics."""
-        loss, metrics = loss_fn(params if has_critic else params["policy"], apply_fn, batch, hyper)
+        loss, metrics = loss_fn(params if critic else params["policy"], apply_fn, batch, hyper)
         if not config.entropy_coef:  # no run has a bonus (`programs.compiled_program`)
             return loss, metrics
         entropy = losses.masked_mean(losses.entropy(apply_fn(params["policy"], batch.obs)),
                                      batch.alive)
         return loss - hyper.entropy_coef * entropy, {**metrics, "entropy": entropy}
 
-    (loss, metrics), grads = jax.value_and_grad(total, has_aux=True)(params)
     optimizer = make_optimizer(config, hyper.learning_rate)
-    stepped = {name: optimizer.update(grads[name], opt_state[name], params[name])
-               for name in params}
-    params = {name: optax.apply_updates(params[name], stepped[name][0]) for name in params}
-    opt_state = {name: stepped[name][1] for name in params}
-    return params, opt_state, loss, global_norm(grads["policy"]), metrics
+
+    def update(carry: tuple[dict[str, Params], dict[str, optax.OptState]], batch: losses.Batch
+               ) -> tuple[tuple[dict[str, Params], dict[str, optax.OptState]],
+                          tuple[Array, Array, dict[str, Array]]]:
+        """One optimizer step of every network on `batch`: (params, opt_state), (loss, grad
+        norm, metrics)."""
+        params, opt_state = carry
+        (loss, metrics), grads = jax.value_and_grad(total, has_aux=True)(params, batch)
+        stepped = {name: optimizer.update(grads[name], opt_state[name], params[name])
+                   for name in params}
+        params = {name: optax.apply_updates(params[name], stepped[name][0]) for name in params}
+        opt_state = {name: stepped[name][1] for name in params}
+        return (params, opt_state), (loss, global_norm(grads["policy"]), metrics)
+
+    if config.updates == 1:
+        (params, opt_state), (loss, grad_norm, metrics) = update((params, opt_state), batch)
+        return params, opt_state, loss, grad_norm, metrics
+    # Unrolled, not a scan: `runwise` rewrites every operation of every update.
+    split, outs = minibatches(config, batch, key), []
+    for i in range(config.updates):
+        (params, opt_state), out = update((params, opt_state),
+                                          jax.tree.map(lambda leaf: leaf[i], split))
+        outs.append(out)
+    loss, grad_norm, metrics = jax.tree.map(lambda *leaves: sum(leaves) / len(leaves), *outs)
+    return params, opt_state, loss, grad_norm, metrics
+
+
+def minibatches(config: TrainConfig, batch: losses.Batch, key: PRNGKey) -> losses.Batch:
+    """The minibatches of every epoch, in order: whole episodes, shuffled anew each epoch.
+
+    Args:
+      config: the `TrainConfig`, whose `epochs` and `minibatches` they are.
+      batch: one run's episodes, `[T, E]` leading axes.
+      key: the run's key `[2]`; each epoch orders the episodes by its own uniforms.
+
+    Returns:
+      `Batch` with leaves `[epochs * minibatches, T, E / minibatches, ...]`.
+    """
+    episodes = config.episodes // config.minibatches
+    orders = jnp.argsort(rng.uniform(key, (config.epochs, config.episodes)), axis=-1)
+
+    def split(leaf: Array) -> Array:
+        """`[T, E, ...]` as `[epochs * minibatches, T, E / minibatches, ...]`."""
+        shuffled = jnp.take(leaf, orders.reshape(-1), axis=1)  # [T, epochs * E, ...]
+        grouped = shuffled.reshape(leaf.shape[0], -1, episodes, *leaf.shape[2:])
+        return jnp.moveaxis(grouped, 1, 0)
+
+    return jax.tree.map(split, batch)
 
 
 def _once_per_input(apply_fn: losses.ApplyFn) -> losses.ApplyFn:
@@ -503,14 +543,15 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
     loss_fn = losses.resolve(config.loss)
     apply_fn = functools.partial(policies.logits, config.network)
     has_critic = losses.critic(config.loss) is not None
+    played = batch._replace(log_prob=shaped(steps, floats), values=shaped(steps, floats))
     out = jax.eval_shape(lambda p, b, h: loss_fn(p if has_critic else p["policy"], apply_fn, b, h),
-                         params, batch, hyper)
+                         params, played, hyper)
     if not (isinstance(out, tuple) and len(out) == 2 and _is_scalar(out[0])
             and isinstance(out[1], dict) and all(map(_is_scalar, out[1].values()))):
         raise ValueError(f"loss: must return (a scalar loss, a dict of scalar metrics), got "
                          f"{jax.tree.map(lambda leaf: leaf.shape, out)}")
-    metrics = jax.eval_shape(functools.partial(learn_run, config),
-                             params, opt_state, batch, hyper)[-1]
+    metrics = jax.eval_shape(functools.partial(learn_run, config), params, opt_state, batch,
+                             hyper, jax.ShapeDtypeStruct((2,), jnp.uint32))[-1]
     return tuple(sorted(metrics))
 
 

@@ -41,6 +41,10 @@ class Batch(NamedTuple):
       reward: float `[T, E]`.
       alive: bool `[T, E]`: the step belongs to its episode.
       returns: float `[T, E]`, discounted returns-to-go, not normalised; 0 where not alive.
+      log_prob: float `[T, E]`, log pi(a_t | s_t) of the policy that played the episodes (the
+        parameters before this iteration's updates), held fixed.
+      values: float `[T, E]`, the loss's critic's values of the observations before this
+        iteration's updates, held fixed; 0 for a loss without a critic.
     """
 
     obs: Array
@@ -48,6 +52,8 @@ class Batch(NamedTuple):
     reward: Array
     alive: Array
     returns: Array
+    log_prob: Array | None = None
+    values: Array | None = None
 
 
 # `apply_fn(policy_params, obs [..., 4]) -> logits [...]`, the logit of P(push left).
@@ -172,7 +178,8 @@ class Baseline:
     (G_t - V(s_t))^2 / 2. The sum of the two is the loss; each network's gradient comes from its
     own part. Metrics: `value_loss`.
 
-    Two `Baseline`s are equal, and hash alike, when their critics are.
+    Two `Baseline`s are equal, and hash alike, when their critics are (and their settings, for
+    a subclass's).
 
     Args:
       critic: the value network, a flax module mapping obs `[..., 4]` to values `[...]`.
@@ -208,15 +215,82 @@ class Baseline:
     def __repr__(self) -> str:
         return f"Baseline(critic={self.critic!r})"
 
+    def _key(self) -> tuple[Any, ...]:
+        """What tells this loss apart from another of its class."""
+        return (self.critic,)
+
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, Baseline) and other.critic == self.critic
+        return type(other) is type(self) and other._key() == self._key()
 
     def __hash__(self) -> int:
-        return hash(("Baseline", self.critic))
+        return hash((type(self).__name__, self._key()))
+
+
+class PPO(Baseline):
+    """Proximal policy optimisation's clipped surrogate, with generalised advantage estimates
+    from a learned state-value critic (Schulman et al., 2017).
+
+    Advantages A_t are GAE(lambda) over the critic's values from before the iteration's updates
+    (`Batch.values`, `returns.gae_masked`), normalised over the alive steps of the batch (a
+    minibatch, with `TrainConfig.minibatches`). With the probability ratio
+    rho_t = pi(a_t | s_t) / pi_old(a_t | s_t) (`Batch.log_prob`), the policy loss is
+    -mean min(rho_t A_t, clip(rho_t, 1 - clip, 1 + clip) A_t); the value loss is
+    value_coef * mean (V(s_t) - (A_t + V_old(s_t)))^2 / 2, unnormalised A_t. Means are over the
+    alive steps. It acts through several updates per batch: `TrainConfig(epochs=...,
+    minibatches=...)`. Metrics: `value_loss`, `clip_fraction` (the share of steps whose ratio
+    was clipped) and `approx_kl` (mean of (rho_t - 1) - log rho_t).
+
+    Args:
+      critic: the value network, a flax module mapping obs `[..., 4]` to values `[...]`.
+      clip: epsilon, how far the ratio may move from 1, positive.
+      gae_lambda: lambda of the advantage estimates, in [0, 1].
+      value_coef: the weight of the value loss, at least 0.
+    """
+
+    # A flax module is an immutable dataclass: one default instance is safe to share.
+    def __init__(self, critic: nn.Module = ValueNetwork(), clip: float = 0.2,
+                 gae_lambda: float = 0.95, value_coef: float = 0.5) -> None:
+        super().__init__(critic)
+        for name, value, ok, allowed in (("clip", clip, clip > 0, "positive"),
+                                         ("gae_lambda", gae_lambda, 0 <= gae_lambda <= 1,
+                                          "in [0, 1]"),
+                                         ("value_coef", value_coef, value_coef >= 0,
+                                          "at least 0")):
+            if not ok:
+                raise ValueError(f"{name}: must be {allowed}, got {value}")
+        self.clip, self.gae_lambda, self.value_coef = clip, gae_lambda, value_coef
+
+    def __call__(self, params: Params, apply_fn: ApplyFn, batch: Batch,
+                 hyper: "Hyperparams") -> tuple[Array, dict[str, Array]]:
+        """The loss of one run, as any `LossFn`; `batch` holds `log_prob` and `values`."""
+        old_values = cast(Array, batch.values)
+        advantages = returns.gae_masked(batch.reward, old_values, batch.alive,
+                                        cast(Array, hyper.discount), self.gae_lambda)
+        log_ratio = log_prob(apply_fn(params["policy"], batch.obs), batch.action) - cast(
+            Array, batch.log_prob)
+        ratio = jnp.exp(log_ratio)
+        normalised = returns.normalize_masked(advantages, batch.alive)
+        surrogate = jnp.minimum(ratio * normalised,
+                                jnp.clip(ratio, 1 - self.clip, 1 + self.clip) * normalised)
+        values = cast(Array, self.critic.apply(params["critic"], batch.obs))
+        value_loss = 0.5 * masked_mean(jnp.square(values - (advantages + old_values)),
+                                       batch.alive)
+        metrics = {"value_loss": value_loss,
+                   "clip_fraction": masked_mean(jnp.abs(ratio - 1) > self.clip, batch.alive),
+                   "approx_kl": masked_mean((ratio - 1) - log_ratio, batch.alive)}
+        return -masked_mean(surrogate, batch.alive) + self.value_coef * value_loss, metrics
+
+    def __repr__(self) -> str:
+        return (f"PPO(critic={self.critic!r}, clip={self.clip}, gae_lambda={self.gae_lambda}, "
+                f"value_coef={self.value_coef})")
+
+    def _key(self) -> tuple[Any, ...]:
+        """What tells this loss apart from another PPO."""
+        return (self.critic, self.clip, self.gae_lambda, self.value_coef)
 
 
 BUILT_IN: dict[str, LossFn] = {
-    "reinforce": reinforce, "reward-to-go": reward_to_go, "baseline": Baseline()}
+    "reinforce": reinforce, "reward-to-go": reward_to_go, "baseline": Baseline(), "ppo": PPO()}
 
 
 def resolve(loss: Any) -> LossFn:

@@ -35,9 +35,9 @@ class Program(NamedTuple):
 
     Attributes:
       config: the `TrainConfig` compiled (`compiled_program`).
-      physics_in_runs: whether the runs' `Hyperparams` carry their physics (`env`).
       extra: the names of the loss's metrics, `Metrics.extra`, in leaf order.
-      init: `(keys [R, 2], Hyperparams [R], optional policy_params of one run) -> TrainState`.
+      init: `(keys [R, 2], Hyperparams [R], optional policy_params and critic_params of one run)
+        -> TrainState`.
       iterate: `(TrainState, Hyperparams [R], count: int32 scalar) -> (TrainState, metrics)`:
         `count` iterations (at most `ITERATIONS_PER_CALL`), whose metrics' leaves, stacked
         `[ITERATIONS_PER_CALL, fields, R]` in one array, fill its first `count` rows. It consumes
@@ -46,7 +46,6 @@ class Program(NamedTuple):
     """
 
     config: TrainConfig
-    physics_in_runs: bool
     extra: tuple[str, ...]
     init: executables.Stored
     iterate: "AloneOrTogether"
@@ -68,9 +67,7 @@ class Program(NamedTuple):
 
     def hyperparams(self, runs: int) -> Hyperparams:
         """`Hyperparams` of `runs` runs as the program takes them, the config's values: `[runs]`."""
-        hyperparams = self.config.hyperparams
-        env = self.config.env_params if self.physics_in_runs else None
-        return hyperparams._replace(env=env).per_run(runs)
+        return self.config.hyperparams.per_run(runs)
 
     def policy_params(self, params: Params) -> Params:
         """The policy's parameters, leaves `[..., R]`, of a `TrainState`'s `params`."""
@@ -78,35 +75,36 @@ class Program(NamedTuple):
             return policies.unflatten(params, cast(policies.PolicyNetwork, self.config.network))
         return params["policy"]
 
+    def critic_params(self, params: Params) -> Params | None:
+        """A loss's critic's parameters, leaves `[..., R]`, of a `TrainState`'s `params`; None
+        for a loss without one."""
+        return None if self.config.hand_gradient else params.get("critic")
 
-def compiled_program(config: TrainConfig, physics_in_runs: bool = False) -> Program:
+
+def compiled_program(config: TrainConfig) -> Program:
     """The jitted `Program` of `config`; `iterate` consumes (donates) the state it is given.
 
     Its functions keep their compiled programs on disk while `executables.keep_programs` is in
     effect.
 
-    Configs that differ only in how many iterations run, what counts as solved, or the values of
+    Configs that differ only in how many iterations run, what counts as solved, the values of
     their hyperparameters (but for whether the entropy coefficient is 0: only then can the fast
-    path serve, `TrainConfig.hand_gradient`) share one: those values are the runs' `Hyperparams`,
-    arguments of the program. So do configs that differ in their physics, where
-    `physics_in_runs`: the runs' `Hyperparams` then carry it (`env`), rather than the program
-    (`train_config.compiled_physics`).
+    path serve, `TrainConfig.hand_gradient`) or of their physics share one: those values are the
+    runs' `Hyperparams`, arguments of the program. Only the physics' static fields (the
+    integrator, the reward scheme) are the program's.
 
     Args:
       config: the `TrainConfig`.
-      physics_in_runs: whether the runs' `Hyperparams` carry their physics; else the program
-        holds `config`'s.
 
     Returns:
       The `Program`, the same object for every config that shares it (up to a cache's size).
     """
     env = config.env_params
-    if physics_in_runs:  # the values come with the runs' `Hyperparams`; only static fields count
-        env = cartpole.V1.replace(integrator=env.integrator,
-                                  sutton_barto_reward=env.sutton_barto_reward)
     return _program(dataclasses.replace(
         config, iterations=1, solved_return=0.0, learning_rate=0.01, discount=0.95,
-        entropy_coef=float(config.entropy_coef != 0), env=env), physics_in_runs)
+        entropy_coef=float(config.entropy_coef != 0),
+        env=cartpole.V1.replace(integrator=env.integrator,
+                                sutton_barto_reward=env.sutton_barto_reward)))
 
 
 # Runs are initialised once: compiled for speed of compiling, not of running (docs/performance.md).
@@ -154,11 +152,11 @@ class AloneOrTogether(NamedTuple):
 
 
 @functools.lru_cache(maxsize=32)
-def _program(config: TrainConfig, physics_in_runs: bool) -> Program:
+def _program(config: TrainConfig) -> Program:
     """The `Program` of a config as `compiled_program` normalises it, checked (`check_config`)."""
     extra = check_config(config)
-    # A user's module, loss or optimizer is known by name only, not by its code: not kept.
-    stored = functools.partial(executables.Stored, settings=config, keep=config.built_in)
+    # A user's module, loss or optimizer is known by name only: kept by its code too.
+    stored = functools.partial(executables.Stored, settings=config, by_code=not config.built_in)
 
     def jit_iterate(options: dict[str, Any] | None) -> jax.stages.Wrapped:
         """`_iterate_stacked` jitted with XLA's `options`, donating the state."""
@@ -166,7 +164,7 @@ def _program(config: TrainConfig, physics_in_runs: bool) -> Program:
                        compiler_options=options)
 
     return Program(
-        config, physics_in_runs, extra,
+        config, extra,
         stored(jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
                "init"),
         AloneOrTogether(stored(jit_iterate(None), "iterate_alone"),

@@ -1,24 +1,23 @@
-"""Training one policy: `train`, and what it shares with sweeps on the host.
+"""What training runs share on the host: their keys, starting parameters and divergence checks.
 
 One iteration plays `episodes` episodes of at most `max_steps` steps with the current policy,
 discounts the rewards and takes one optimizer step on the loss (`jaxpg.iteration`). Iterations
 of many runs together are one compiled program (`jaxpg.programs`), which the host calls for up to
-`programs.ITERATIONS_PER_CALL` iterations at a time (`jaxpg.schedule`), showing progress as they
-complete.
+`programs.ITERATIONS_PER_CALL` iterations at a time (`jaxpg.schedule`); `jaxpg.sweeps` trains
+every run, one (`train`) or many (`sweep`), that way.
 """
 
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import jax
 import numpy as np
 
-from jaxpg import budget, policies, programs, progress, schedule, xla_options
-from jaxpg.iteration import Metrics, TrainResult
+from jaxpg import losses, policies
+from jaxpg.iteration import Metrics
 from jaxpg.train_config import TrainConfig
 from jaxpg.types import ArrayLike, HostArray, Params
-from jaxpg.validation import check_int
 
 
 def run_keys(seeds: ArrayLike | Sequence[int]) -> HostArray:
@@ -36,65 +35,26 @@ def run_keys(seeds: ArrayLike | Sequence[int]) -> HostArray:
     return np.stack([np.zeros_like(seeds), seeds], axis=-1)
 
 
-# A frozen dataclass: one default instance is safe to share.
-def train(config: TrainConfig = TrainConfig(), seed: int = 0,
-          init_params: Params | None = None,
-          on_iteration: Callable[[int, Metrics], None] | None = None,
-          show_progress: bool = True) -> TrainResult:
-    """Trains one policy.
-
-    Args:
-      config: the `TrainConfig`.
-      seed: an integer in [0, 2**32): the run's key is `jax.random.PRNGKey(seed)`.
-      init_params: optional policy parameters to start from (a checkpoint's), shaped as the
-        policy's own; the optimizer starts afresh.
-      on_iteration: optional `(iteration, metrics) -> None`, called on the host as iterations
-        complete, in order, with that iteration's `Metrics` (scalar leaves).
-      show_progress: print progress lines on stderr.
-
-    Returns:
-      `TrainResult`: the final `policy_params` and `Metrics` with `[iterations]` leaves.
-
-    Raises:
-      ValueError: for a config that is not a `TrainConfig`, a seed out of range, training that
-        needs more memory than the machine's (`budget.check`), or `init_params` not shaped as
-        the policy's parameters; each before anything compiles.
-    """
-    if not isinstance(config, TrainConfig):
-        raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
-    check_int("seed", seed, 0, 2**32)
-    budget.check(config)
-    xla_options.configure_unstarted()
-    hyperparams = config.hyperparams.per_run()
-    program = programs.compiled_program(config, physics_in_runs=hyperparams.env is not None)
-    if init_params is not None:
-        init_params = check_init_params(config, init_params)
-    first_run = None if on_iteration is None else (
-        lambda i, metrics: on_iteration(i, jax.tree.map(lambda leaf: leaf[0], metrics)))
-    with progress.bar(config.iterations, enabled=show_progress) as shown:
-        (result,) = schedule.train_blocks(
-            program, config.iterations, [(run_keys([seed]), hyperparams)],
-            progress.together(shown, first_run), init_params)
-    result = jax.tree.map(lambda leaf: leaf[0], result)
-    warn_if_diverged(jax.tree.map(lambda leaf: leaf[None], result.metrics))
-    return result
-
-
-def check_init_params(config: TrainConfig, init_params: Params) -> Params:
-    """`init_params` as numpy arrays of the policy's dtypes, checked against the policy's shapes.
+def check_init_params(config: TrainConfig, init_params: Params, critic: bool = False) -> Params:
+    """`init_params` as numpy arrays of the network's dtypes, checked against its shapes.
 
     Args:
       config: the `TrainConfig` whose policy (`TrainConfig.network`) they are for.
-      init_params: one run's policy parameters.
+      init_params: one run's policy parameters (with `critic`, its loss's critic's).
+      critic: whether they are the parameters of the loss's critic (`losses.critic`).
 
     Returns:
       The parameters as numpy arrays.
 
     Raises:
-      ValueError: unless they have the tree and shapes of the policy's own parameters
-        (`jax.eval_shape` of its `init`).
+      ValueError: unless they have the tree and shapes of the network's own parameters
+        (`jax.eval_shape` of its `init`), or for a critic's where the loss has none.
     """
-    want = jax.eval_shape(lambda key: policies.init_network(key, config.network),
+    name, network = (("init_critic_params", losses.critic(config.loss)) if critic
+                     else ("init_params", config.network))
+    if network is None:
+        raise ValueError(f"{name}: the loss {config.loss!r} has no critic")
+    want = jax.eval_shape(lambda key: policies.init_network(key, network),
                           jax.ShapeDtypeStruct((2,), np.uint32))
     try:
         params = jax.tree.map(lambda w, leaf: np.asarray(leaf, w.dtype), want, init_params)
@@ -103,8 +63,8 @@ def check_init_params(config: TrainConfig, init_params: Params) -> Params:
     except (TypeError, ValueError):
         matches = False
     if not matches:
-        raise ValueError(f"init_params: expected the policy's parameters, shaped "
-                         f"{jax.tree.map(lambda leaf: leaf.shape, want)}")
+        raise ValueError(f"{name}: expected the {'critic' if critic else 'policy'}'s "
+                         f"parameters, shaped {jax.tree.map(lambda leaf: leaf.shape, want)}")
     return params
 
 

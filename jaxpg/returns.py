@@ -38,6 +38,37 @@ def discount_masked(rewards: jax.Array, alive: jax.Array, discount_rate: float |
     return jnp.where(alive, returns, 0.0)
 
 
+def gae_masked(rewards: jax.Array, values: jax.Array, alive: jax.Array,
+               discount_rate: float | jax.Array, gae_lambda: float | jax.Array) -> jax.Array:
+    """Generalised advantage estimates of `[T, E, ...]` steps; 0 on the steps that are not alive.
+
+    A_t = delta_t + discount_rate * gae_lambda * A_{t+1}, with
+    delta_t = r_t + discount_rate * V(s_{t+1}) - V(s_t), by a reverse scan over time. The value
+    after an episode's last alive step is 0, whether it ended by termination or at the horizon.
+
+    Args:
+      rewards: float `[T, E, ...]` rewards.
+      values: float `[T, E, ...]`, the critic's value of each step's observation.
+      alive: bool `[T, E, ...]`: the steps of each episode.
+      discount_rate: a number in [0, 1], or a traced scalar.
+      gae_lambda: a number in [0, 1], or a traced scalar.
+
+    Returns:
+      The advantages `[T, E, ...]`, in the rewards' dtype.
+    """
+    values = jnp.where(alive, values, 0.0)
+    next_values = jnp.concatenate([values[1:], jnp.zeros_like(values[:1])])
+    deltas = jnp.where(alive, rewards + discount_rate * next_values - values, 0.0)
+
+    def accumulate(future: jax.Array, delta: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """A_t from A_{t+1} and delta_t, as the carry and the output."""
+        advantage = delta + discount_rate * gae_lambda * future
+        return advantage, advantage
+
+    _, advantages = jax.lax.scan(accumulate, jnp.zeros_like(deltas[0]), deltas, reverse=True)
+    return jnp.where(alive, advantages, 0.0)
+
+
 def normalize_masked(values: jax.Array, alive: jax.Array) -> jax.Array:
     """`(values - mean) / std` over the alive entries of `[T, E, ...]`; 0 elsewhere.
 

@@ -1,6 +1,7 @@
 """Training on the host: which runs train together, on which threads, and in which calls."""
 
 import concurrent.futures
+import functools
 import os
 import threading
 from collections.abc import Callable, Sequence
@@ -68,6 +69,7 @@ def train_blocks(
     program: Program, iterations: int, parts: Sequence[Part],
     on_iteration: Callable[[int, Metrics], None] | None = None,
     policy_params: Params | None = None, eval_episodes: int = 0,
+    critic_params: Params | None = None,
 ) -> list[TrainResult]:
     """Trains each part's runs for `iterations` iterations, every part on its own device.
 
@@ -84,6 +86,8 @@ def train_blocks(
       on_iteration: optional `(iteration, Metrics) -> None`, the metrics' leaves `[sum of R_p]`,
         called on the host for every iteration in order, while later ones are already training.
       policy_params: optional parameters of one run's policy that every run starts from.
+      critic_params: optional parameters of one run's critic that every run's critic starts
+        from.
       eval_episodes: how many held-out episodes each run's final policy plays (`Program.evaluate`).
 
     Returns:
@@ -96,7 +100,8 @@ def train_blocks(
             blocks.append(block)
             owners.append(index)
             owned.append(runs)
-    start_from = () if policy_params is None else (policy_params,)
+    start_from = () if policy_params is None and critic_params is None else (
+        policy_params, critic_params)
     blocks = [(*block, *start_from) for block in blocks]
     prepare(program, blocks)
     schedule = calls(iterations)
@@ -164,15 +169,16 @@ def train_blocks(
             np.concatenate([m[..., :owned[i]] for m, i in zip(call, mine)], axis=-1)[:count]
             for call, (_, count) in zip(metrics, schedule)])
         stacked = program.metrics(np.moveaxis(rows, 0, -1))
-        params = program.policy_params(jax.tree.map(
+        params = jax.tree.map(  # leaves [..., R_p]
             lambda *leaves: np.concatenate(leaves, axis=-1),
             *[jax.tree.map(lambda leaf, i=i: leaf[..., :owned[i]], finals[i].params)
-              for i in mine]))
+              for i in mine])
+        runs_first = functools.partial(jax.tree.map, lambda leaf: np.moveaxis(leaf, -1, 0))
         evaluation = None if not eval_episodes else jax.tree.map(  # [R_p, N]
             lambda *leaves: np.concatenate(leaves),
             *[jax.tree.map(lambda leaf, i=i: leaf[:owned[i]], evaluations[i]) for i in mine])
-        results.append(TrainResult(jax.tree.map(lambda leaf: np.moveaxis(leaf, -1, 0), params),
-                                   stacked, evaluation))
+        results.append(TrainResult(runs_first(program.policy_params(params)), stacked,
+                                   evaluation, runs_first(program.critic_params(params))))
     return results
 
 

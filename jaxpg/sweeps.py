@@ -1,7 +1,7 @@
-"""Many training runs at once: seeds times a grid of hyperparameters and physics.
+"""Training runs: seeds times a grid of hyperparameters and physics (`sweep`), or one (`train`).
 
-Every run of a sweep trains in the same compiled program as `train` runs alone, beside the other
-runs on the last axis of every array; seed i of a sweep therefore trains exactly as
+`train` is a sweep of one seed. Every run trains in blocks of runs (`schedule.train_blocks`)
+that compute it alike whatever the others are, so seed i of a sweep trains bit for bit as
 `train(config, seed=i)`. The runs are spread over every device of every process, and trained in
 chunks when a memory budget asks for it.
 """
@@ -28,6 +28,7 @@ from jaxpg import (
     train_config,
     xla_options,
 )
+from jaxpg.types import Params
 from jaxpg.validation import check_int, check_number
 
 GRID_FIELDS = (*train_config.HYPERPARAMETERS, *train_config.PHYSICS)
@@ -73,7 +74,7 @@ class Summary(NamedTuple):
 
 
 class SweepResult(NamedTuple):
-    """Every run of a sweep, `[G, S, ...]`: grid settings by seeds."""
+    """Every run of a sweep, `[G, S, ...]`: grid settings by seeds, and the config they share."""
 
     seeds: np.ndarray  # [S] uint32
     # G dicts {"learning_rate": ..., "discount": ..., "entropy_coef": ..., physics}
@@ -83,6 +84,8 @@ class SweepResult(NamedTuple):
     summary: Summary  # statistics across seeds (`summarize`)
     eval_returns: np.ndarray | None = None  # [G, S, N] held-out returns, actions sampled
     eval_greedy_returns: np.ndarray | None = None  # [G, S, N] the same episodes, greedy actions
+    critic_params: dict | None = None  # leaves [G, S, ...]: a loss's critic; None without one
+    config: train_config.TrainConfig | None = None  # every run's (the grid's values aside)
 
 
 def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, float]]:
@@ -246,10 +249,13 @@ def check_arguments(
       ValueError: one line naming the argument, for any of them out of range, or runs that need
         more memory than the machine has.
     """
+    if not isinstance(config, train_config.TrainConfig):
+        raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     num_seeds = count_seeds(seeds)
     settings = expand_grid(config, grid)
     budget.check_memory_budget(memory_budget)
-    budget.check(config, num_seeds * len(settings),
+    runs = num_seeds * len(settings)
+    budget.check(config, runs, "1 run" if runs == 1 else
                  f"{num_seeds} seeds x {len(settings)} settings")
     return check_seeds(seeds), settings
 
@@ -262,6 +268,8 @@ def sweep(
     memory_budget: int | None = None,
     on_iteration: OnIteration | None = None,
     eval_episodes: int = 0,
+    init_params: Params | None = None,
+    init_critic_params: Params | None = None,
 ) -> SweepResult:
     """Trains every seed under every grid setting, on every device, in chunks that fit a budget.
 
@@ -280,24 +288,32 @@ def sweep(
         runs, setting-major, as `SweepResult` orders them).
       eval_episodes: N: after training, each run's final policy plays N fresh episodes of its
         own (`iteration.evaluate_runs`), with actions sampled and greedy.
+      init_params: optional policy parameters (a checkpoint's), shaped as the policy's own, that
+        every run's policy starts from; the optimizer starts afresh.
+      init_critic_params: optional parameters of the loss's critic (a result's
+        `critic_params` of one run) that every run's critic starts from.
 
     Returns:
-      `SweepResult` with `[G, S, ...]` leaves and the `Summary` (and with `eval_episodes`, the
-      held-out returns `[G, S, N]`), on every process.
+      `SweepResult` with `[G, S, ...]` leaves, the `Summary` (and with `eval_episodes`, the
+      held-out returns `[G, S, N]`) and `config`, on every process.
 
     Raises:
       ValueError: one line naming the argument, for any of them out of range (`check_arguments`),
-        before anything is compiled; for a `memory_budget` below one run's need, after compiling.
+        or `init_params` not shaped as the policy's parameters, before anything is compiled;
+        for a `memory_budget` below one run's need, after compiling.
     """
     seeds, settings = check_arguments(config, seeds, grid, memory_budget)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
+    if init_params is not None:
+        init_params = reinforce.check_init_params(config, init_params)
+    if init_critic_params is not None:
+        init_critic_params = reinforce.check_init_params(config, init_critic_params, critic=True)
     inputs = run_inputs(config, seeds, settings)
     num_runs = inputs[0].shape[0]
     xla_options.configure_unstarted()
     # The fast path only where no run has an entropy bonus: one program serves every setting.
     entropy = max(setting["entropy_coef"] for setting in settings)
-    program = programs.compiled_program(dataclasses.replace(config, entropy_coef=entropy),
-                                        physics_in_runs=inputs[1].env is not None)
+    program = programs.compiled_program(dataclasses.replace(config, entropy_coef=entropy))
     if memory_budget is None:
         chunk = chunk_size(num_runs, jax.device_count())
     else:
@@ -311,7 +327,8 @@ def sweep(
         label = f"runs {start + 1}-{stop} of {num_runs}" if chunk < num_runs else ""
         with progress.bar(config.iterations, show_progress, label=label) as shown:
             part = train_on_devices(program, config.iterations, _take(inputs, indices),
-                                    progress.together(shown, on_iteration), eval_episodes)
+                                    progress.together(shown, on_iteration), eval_episodes,
+                                    (init_params, init_critic_params))
         if result is None:
             result = jax.tree.map(
                 lambda leaf: np.empty((num_runs, *leaf.shape[1:]), leaf.dtype), part)
@@ -326,7 +343,44 @@ def sweep(
         [f"seed {seed} with {setting}" for setting in settings for seed in seeds])
     sampled, greedy = (None, None) if result.evaluation is None else result.evaluation
     return SweepResult(seeds, settings, result.policy_params, result.metrics, summary, sampled,
-                       greedy)
+                       greedy, result.critic_params, config)
+
+
+# A frozen dataclass: one default instance is safe to share.
+def train(config: train_config.TrainConfig = train_config.TrainConfig(), seed: int = 0,
+          init_params: Params | None = None,
+          on_iteration: OnIteration | None = None,
+          show_progress: bool = True,
+          init_critic_params: Params | None = None) -> iteration.TrainResult:
+    """Trains one policy: a `sweep` of one seed, which it trains bit for bit as any sweep does.
+
+    Args:
+      config: the `TrainConfig`.
+      seed: an integer in [0, 2**32): the run's key is `jax.random.PRNGKey(seed)`.
+      init_params: optional policy parameters to start from (a checkpoint's), shaped as the
+        policy's own; the optimizer starts afresh.
+      on_iteration: optional `(iteration, metrics) -> None`, called on the host as iterations
+        complete, in order, with that iteration's `Metrics` (scalar leaves).
+      show_progress: print progress lines on stderr.
+      init_critic_params: optional parameters of the loss's critic to start from (a
+        `TrainResult`'s `critic_params`).
+
+    Returns:
+      `TrainResult`: the final `policy_params`, `Metrics` with `[iterations]` leaves and, for a
+      loss with a critic, its `critic_params`.
+
+    Raises:
+      ValueError: for a config that is not a `TrainConfig`, a seed out of range, training that
+        needs more memory than the machine's (`budget.check`), or `init_params` not shaped as
+        the policy's parameters; each before anything compiles.
+    """
+    check_int("seed", seed, 0, 2**32)
+    first_run = None if on_iteration is None else (
+        lambda i, metrics: on_iteration(i, jax.tree.map(lambda leaf: leaf[0], metrics)))
+    result = sweep(config, [seed], show_progress=show_progress, on_iteration=first_run,
+                   init_params=init_params, init_critic_params=init_critic_params)
+    return jax.tree.map(lambda leaf: leaf[0, 0], iteration.TrainResult(
+        result.policy_params, result.metrics, critic_params=result.critic_params))
 
 
 def run_inputs(
@@ -341,14 +395,10 @@ def run_inputs(
 
     Returns:
       (keys `[R, 2]` uint32, `Hyperparams` with `[R]` leaves) as numpy arrays, where
-      R = G * S and run g * S + s is seed s under setting g. Their physics (`env`) is None where
-      every setting has `config`'s, a preset's (`train_config.compiled_physics`).
+      R = G * S and run g * S + s is seed s under setting g.
     """
     keys = np.tile(np.asarray(reinforce.run_keys(seeds)), (len(settings), 1))
     hypers = [setting_hyperparams(config, setting) for setting in settings for _ in seeds]
-    if all(hyper.env == config.env_params for hyper in hypers) and (
-            train_config.compiled_physics(config.env_params)):
-        hypers = [hyper._replace(env=None) for hyper in hypers]
     return keys, train_config.stack(hypers)
 
 
@@ -363,6 +413,7 @@ def train_on_devices(
     inputs: RunInputs,
     on_iteration: OnIteration | None = None,
     eval_episodes: int = 0,
+    start_from: tuple[Params | None, Params | None] = (None, None),
 ) -> iteration.TrainResult:
     """Trains runs `[C]`, a multiple of the device count, on every device of every process.
 
@@ -377,6 +428,7 @@ def train_on_devices(
       inputs: (keys `[C, 2]`, `Hyperparams` `[C]`) as numpy arrays, the same on every process.
       on_iteration: optional `(iteration, metrics) -> None` for this process's runs.
       eval_episodes: N: held-out episodes each run's final policy plays after training (0: none).
+      start_from: optional parameters of one run's (policy, critic) that every run starts from.
 
     Returns:
       `TrainResult` with numpy leaves `[C, ...]` (and with `eval_episodes`, its `Evaluation`
@@ -389,8 +441,8 @@ def train_on_devices(
     shares = [slice(first + i * per_device, first + (i + 1) * per_device)
               for i in range(len(devices))]
     parts = [jax.device_put(_take(inputs, share), device) for share, device in zip(shares, devices)]
-    local = schedule.train_blocks(program, iterations, parts, on_iteration,
-                                  eval_episodes=eval_episodes)
+    local = schedule.train_blocks(program, iterations, parts, on_iteration, start_from[0],
+                                  eval_episodes, start_from[1])
     local = jax.tree.map(lambda *leaves: np.concatenate(leaves), *local)
     return multihost_utils.process_allgather(local, tiled=True)
 

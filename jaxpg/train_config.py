@@ -38,7 +38,7 @@ class TrainConfig:
       activation: the default network's activation, a name of `policies.ACTIVATIONS`.
       policy: optional flax module mapping observations `[..., 4]` to the logit of P(push left),
         `[...]` or `[..., 1]`, or to the two logits of a categorical policy `[..., 2]`.
-      loss: "reinforce" (the book's), "reward-to-go", "baseline", or a function
+      loss: "reinforce" (the book's), "reward-to-go", "baseline", "ppo", or a function
         `loss(params, apply_fn, batch, hyper) -> (loss, metrics)` (`jaxpg.losses`).
       optimizer: an optax optimizer's name (one taking a `learning_rate`), or a function
         `learning_rate -> optax.GradientTransformation`.
@@ -47,6 +47,10 @@ class TrainConfig:
         every episode draws each named field uniformly in [low, high) inside the program. Kept
         as `Ranges`, sorted `(field, (low, high))` pairs of floats.
       solved_return: the mean return that counts as solved.
+      epochs: how many times each iteration's episodes are gone through, one optimizer step per
+        minibatch each time (PPO's epochs); 1 by default, the book's one step.
+      minibatches: how many minibatches of whole episodes each epoch splits the episodes into,
+        shuffled anew every epoch; `episodes` must be a multiple of it.
       learning_rate: the optimizer's learning rate, positive.
       discount: the discount rate of the returns, in (0, 1].
       entropy_coef: the weight of the entropy bonus `-entropy_coef * mean entropy` added to any
@@ -68,6 +72,8 @@ class TrainConfig:
     env: str | cartpole.CartPoleParams = "CartPole-v1"
     randomize: Any = ()  # a dict {field: (low, high)}, kept as `Ranges`
     solved_return: float = 195.0
+    epochs: int = 1
+    minibatches: int = 1
     # Varied by sweeps within one program.
     learning_rate: float = 0.01
     discount: float = 0.95
@@ -77,8 +83,11 @@ class TrainConfig:
         """Converts `hidden` and `randomize` to their kept forms and checks every field."""
         if isinstance(self.hidden, Iterable) and not isinstance(self.hidden, str):
             object.__setattr__(self, "hidden", tuple(self.hidden))
-        for name in ("iterations", "episodes", "max_steps"):
+        for name in ("iterations", "episodes", "max_steps", "epochs", "minibatches"):
             object.__setattr__(self, name, check_int(name, getattr(self, name)))
+        if self.episodes % self.minibatches:
+            raise ValueError(f"minibatches: must divide episodes ({self.episodes}), got "
+                             f"{self.minibatches}")
         policies.check_network(self.hidden, self.activation)
         if self.policy is not None and not isinstance(self.policy, nn.Module):
             raise ValueError(f"policy: expected None or a flax.linen.Module, got "
@@ -107,10 +116,8 @@ class TrainConfig:
 
     @property
     def hyperparams(self) -> "Hyperparams":
-        """The config's `Hyperparams`, scalars: `env` None for a preset (`compiled_physics`)."""
-        env = self.env_params
-        return Hyperparams(self.learning_rate, self.discount, self.entropy_coef,
-                           None if compiled_physics(env) else env)
+        """The config's `Hyperparams`, scalars, with its physics."""
+        return Hyperparams(self.learning_rate, self.discount, self.entropy_coef, self.env_params)
 
     @property
     def built_in(self) -> bool:
@@ -125,9 +132,16 @@ class TrainConfig:
     def hand_gradient(self) -> bool:
         """Whether training takes the fast path, whose gradient `jaxpg.hand_gradient` computes.
 
-        That is the default network with the book's loss and no entropy bonus.
+        That is the default network with the book's loss, no entropy bonus and an optimizer of
+        `ELEMENTWISE_OPTIMIZERS`.
         """
-        return self.policy is None and self.loss == "reinforce" and self.entropy_coef == 0
+        return (self.policy is None and self.loss == "reinforce" and self.entropy_coef == 0
+                and self.optimizer in ELEMENTWISE_OPTIMIZERS and self.updates == 1)
+
+    @property
+    def updates(self) -> int:
+        """Optimizer steps per iteration: `epochs * minibatches`."""
+        return self.epochs * self.minibatches
 
 
 class Hyperparams(NamedTuple):
@@ -137,14 +151,15 @@ class Hyperparams(NamedTuple):
       learning_rate: float32, the optimizer's learning rate.
       discount: float32, the discount rate of the returns.
       entropy_coef: float32, the weight of the entropy bonus.
-      env: each run's physics, leaves as the other fields; None for a preset's
-        (`compiled_physics`), which the program holds as the config's.
+      env: each run's physics, leaves as the other fields: every physics, a preset's too, is an
+        input of the training program, so that one program serves every value and a value trains
+        alike whether it is the config's or a grid's.
     """
 
     learning_rate: ArrayLike
     discount: ArrayLike
     entropy_coef: ArrayLike
-    env: cartpole.CartPoleParams | None
+    env: cartpole.CartPoleParams
 
     def per_run(self, runs: int = 1) -> "Hyperparams":
         """These settings, scalars, repeated for `runs` runs.
@@ -203,16 +218,14 @@ def check_ranges(randomize: Any, env_params: cartpole.CartPoleParams) -> Ranges:
     return tuple(sorted(ranges.items()))
 
 
-def compiled_physics(env_params: cartpole.CartPoleParams) -> bool:
-    """Whether training compiles `env_params` into its program, as constants.
-
-    A preset's physics (`cartpole.PRESETS`) are compiled in, and train bit for bit as such; any
-    other physics comes with the runs' `Hyperparams`, so that one program serves every value. The
-    two are not interchangeable: XLA folds constants, which rounds some steps otherwise than the
-    same values passed in.
-    """
-    return any(env_params == preset for preset in cartpole.PRESETS.values())
-
+# Optimizers that update each parameter from its own history alone: the fast path steps a run's
+# parameters as the one vector it keeps them in. `tests/test_reinforce.py` checks every name here
+# against the per-array update.
+ELEMENTWISE_OPTIMIZERS = frozenset({
+    "adabelief", "adadelta", "adagrad", "adam", "adamax", "adamaxw", "adamw", "adan", "amsgrad",
+    "lion", "optimistic_adam_v2", "optimistic_gradient_descent", "radam", "rmsprop", "rprop", "sgd",
+    "sign_sgd", "signum", "yogi",
+})
 
 # Hyperparameters that a sweep may vary, and the physical fields of `CartPoleParams`.
 HYPERPARAMETERS = ("learning_rate", "discount", "entropy_coef")
@@ -224,7 +237,7 @@ def stack(settings: Sequence[Hyperparams]) -> Hyperparams:
     """`Hyperparams` of R runs from R scalar ones.
 
     Args:
-      settings: R scalar `Hyperparams`, all with the same static physics (or all None).
+      settings: R scalar `Hyperparams`, all with the same static physics.
 
     Returns:
       `Hyperparams` with numpy `[R]` leaves: float32 hyperparameters; physics in JAX's default
@@ -238,8 +251,7 @@ def stack(settings: Sequence[Hyperparams]) -> Hyperparams:
             return np.asarray(values, np.int32)
         return np.asarray(values, floats)
 
-    env = None if settings[0].env is None else jax.tree.map(
-        column, *[setting.env for setting in settings])
+    env = jax.tree.map(column, *[setting.env for setting in settings])
     return Hyperparams(**{name: np.asarray([getattr(s, name) for s in settings], np.float32)
                           for name in HYPERPARAMETERS}, env=env)
 

@@ -86,7 +86,7 @@ def test_sweep_writes_summary_and_picture(tmp_path):
     (["train", "--activation", "nope"], "activation"),
     (["train", "--env", "CartPole-v7"], "env"),
     (["train", "--hidden", "x"], "hidden"),
-    (["train", "--loss", "ppo"], "--loss"),
+    (["train", "--loss", "a2c"], "--loss"),
     (["train", "--entropy-coef", "-1"], "entropy_coef"),
     (["sweep", "--entropy-coef", "0,inf"], "entropy_coef"),
     (["sweep", "--seeds", "0"], "seeds"),

@@ -1,5 +1,5 @@
 """Compiled programs: one per config, calls of several iterations train as calls of one, and
-those of named parts only are kept on disk."""
+kept on disk by name, or by their code for a user's own parts."""
 
 import dataclasses
 
@@ -64,18 +64,32 @@ def test_calls_of_several_iterations_train_as_calls_of_one(num_runs, iterations)
 
 
 class _Module(nn.Module):
+    width: int = 1
+
     @nn.compact
     def __call__(self, obs):
-        return nn.Dense(1)(obs)
+        return nn.Dense(1)(nn.tanh(nn.Dense(self.width)(obs)))
 
 
-def test_programs_of_named_parts_are_kept_and_of_a_users_code_are_not(tmp_path, monkeypatch):
+def test_programs_of_named_parts_are_kept_by_name_and_of_a_users_code_by_their_code(
+        tmp_path, monkeypatch):
+    """A user's module, loss or optimizer is kept under the digest of its lowered program: the
+    same code, even defined anew (a later process), loads its program; other code compiles."""
     monkeypatch.setattr(executables, "_directory", None)
     keep_programs(tmp_path)
     config = TrainConfig(iterations=2, episodes=2, max_steps=10, optimizer="sgd")
-    train(config, show_progress=False)
+    users = [dataclasses.replace(config, policy=_Module()),
+             dataclasses.replace(config, optimizer=lambda lr: optax.sgd(lr))]
+    results = [train(c, show_progress=False) for c in (config, *users)]
     kept = set(tmp_path.iterdir())
-    assert kept
-    train(dataclasses.replace(config, policy=_Module()), show_progress=False)
-    train(dataclasses.replace(config, optimizer=lambda lr: optax.sgd(lr)), show_progress=False)
-    assert set(tmp_path.iterdir()) == kept
+    assert len(kept) == 6  # init and iterate of each
+    programs._program.cache_clear()  # as a new process
+    with xla_compiles() as compiled:
+        again = [train(c, show_progress=False)
+                 for c in (config, dataclasses.replace(config, policy=_Module()),
+                           dataclasses.replace(config, optimizer=lambda lr: optax.sgd(lr)))]
+    assert not [name for name in compiled if "_iterate_stacked" in name or "init_runs" in name]
+    chex.assert_trees_all_equal(again, results)
+    with xla_compiles() as compiled:
+        train(dataclasses.replace(config, policy=_Module(width=2)), show_progress=False)
+    assert compiled.count("jit(_iterate_stacked)") == 1

@@ -8,17 +8,19 @@ import numpy as np
 README = pathlib.Path(__file__).parent.parent / "README.md"
 
 
-def _python_block(section):
-    """The first ```python block under the README heading `section`."""
+def _python_block(section, index=0):
+    """The `index`-th ```python block under the README heading `section` (in that section)."""
     text = README.read_text()
     body = text[text.index(f"## {section}\n"):]
-    return re.search(r"```python\n(.*?)```", body, re.DOTALL)[1]
+    end = body.find("\n## ", 1)  # the next section's heading
+    body = body if end < 0 else body[:end]
+    return re.findall(r"```python\n(.*?)```", body, re.DOTALL)[index]
 
 
-def _run(section):
-    """Executes the section's block; returns the names it defined."""
+def _run(section, index=0):
+    """Executes the section's `index`-th block; returns the names it defined."""
     namespace = {}
-    exec(compile(_python_block(section), str(README), "exec"), namespace)
+    exec(compile(_python_block(section, index), str(README), "exec"), namespace)
     return namespace
 
 
@@ -38,6 +40,12 @@ def test_your_own_policy_and_loss_runs_and_learns(capsys):
     assert results.metrics.extra["clipped"].shape == (2, 16, 150)
     assert results.summary.final_return.mean() > 100  # it learned (a random policy scores ~22)
     assert len(capsys.readouterr().out.splitlines()) == 2
+
+
+def test_ppo_example_solves_cartpole(capsys):
+    namespace = _run("Your own policy and loss", 1)
+    assert float(capsys.readouterr().out) >= 195
+    assert set(namespace) >= {"ppo"}
 
 
 def test_sweeps_robustness_and_statistics_run():

@@ -41,6 +41,29 @@ def test_masked_discount_equals_a_python_loop():
     assert np.all(np.asarray(got)[~alive] == 0)
 
 
+def test_gae_equals_a_python_loop_and_is_the_return_minus_values_at_lambda_one():
+    rng = np.random.default_rng(1)
+    rewards = rng.normal(size=(30, 7)).astype(np.float32)
+    values = rng.normal(size=(30, 7)).astype(np.float32)
+    lengths = rng.integers(1, 31, size=7)
+    alive = np.arange(30)[:, None] < lengths[None, :]
+    expected = np.zeros_like(rewards)
+    for e, n in enumerate(lengths):
+        running = 0.0
+        for t in reversed(range(n)):
+            following = values[t + 1, e] if t + 1 < n else 0.0  # 0 after the last step
+            running = rewards[t, e] + 0.9 * following - values[t, e] + 0.9 * 0.8 * running
+            expected[t, e] = running
+    got = returns.gae_masked(jnp.asarray(rewards), jnp.asarray(values), jnp.asarray(alive),
+                             0.9, 0.8)
+    np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-5)
+    assert np.all(np.asarray(got)[~alive] == 0)
+    at_one = returns.gae_masked(jnp.asarray(rewards), jnp.asarray(values), jnp.asarray(alive),
+                                0.9, 1.0)
+    np.testing.assert_allclose(at_one, np.where(alive, _loop_discount(rewards, lengths, 0.9)
+                                                - values, 0), rtol=1e-4, atol=1e-4)
+
+
 def test_normalize_uses_alive_steps_and_population_std():
     values = jnp.asarray([[1.0, 5.0], [3.0, 100.0]])
     alive = jnp.asarray([[True, True], [True, False]])

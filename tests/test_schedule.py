@@ -14,7 +14,6 @@ from jaxpg import (
     programs,
     reinforce,
     schedule,
-    train_config,
 )
 
 
@@ -71,9 +70,8 @@ def test_blocks_padded_with_copies_train_their_runs_as_alone(cores, monkeypatch)
     config = TrainConfig(iterations=3, episodes=3, max_steps=30)
     blocks, size = schedule.cpu_blocks(5)
     assert size > max(stop - start for start, stop in blocks)  # copies in every block
-    hyperparams = train_config.Hyperparams(np.linspace(0.005, 0.02, 5, dtype=np.float32),
-                                           np.full(5, 0.95, np.float32), np.zeros(5, np.float32),
-                                           None)
+    hyperparams = config.hyperparams.per_run(5)._replace(
+        learning_rate=np.linspace(0.005, 0.02, 5, dtype=np.float32))
     part = (reinforce.run_keys(np.arange(5)), hyperparams)
     program = programs.compiled_program(config)
     (together,) = schedule.train_blocks(program, config.iterations, [part])

@@ -48,6 +48,37 @@ def test_grid_runs_every_setting_and_matches_train():
     assert_trained_alike(jax.tree.map(lambda a: a[2, 1], swept.metrics), alone.metrics)
 
 
+@pytest.mark.parametrize("changes", [{}, {"loss": "baseline", "optimizer": "sgd"}])
+def test_a_grid_value_equal_to_the_presets_trains_as_train(changes):
+    """Physics is always an input of the program: `length` 0.5 in a grid is CartPole-v1's."""
+    config = dataclasses.replace(TrainConfig(iterations=12), **changes)
+    swept = sweep(config, seeds=range(3), grid={"length": [0.5, 1.0]}, show_progress=False)
+    for seed in range(3):
+        alone = train(config, seed=seed, show_progress=False)
+        chex.assert_trees_all_equal(
+            jax.tree.map(lambda a: a[0, seed], (swept.metrics, swept.policy_params)),
+            (alone.metrics, alone.policy_params))
+
+
+def test_a_sweep_carries_its_config_and_its_critics_which_warm_start():
+    config = TrainConfig(iterations=2, episodes=3, max_steps=20, loss="baseline",
+                         optimizer="sgd")
+    swept = sweep(config, seeds=range(3), show_progress=False)
+    assert swept.config == config
+    critic = jax.tree.map(lambda a: a[0, 1], swept.critic_params)
+    alone = train(config, seed=1, show_progress=False)
+    chex.assert_trees_all_equal(alone.critic_params, critic)
+    assert train(TrainConfig(iterations=1), show_progress=False).critic_params is None
+    # A learning rate too small to move the weights: the critic is the one given, bit for bit.
+    still = train(dataclasses.replace(config, iterations=1, learning_rate=1e-30), seed=7,
+                  init_critic_params=critic, show_progress=False)
+    chex.assert_trees_all_equal(still.critic_params, critic)
+    with pytest.raises(ValueError, match="init_critic_params: the loss 'reinforce' has no critic"):
+        train(TrainConfig(), init_critic_params=critic, show_progress=False)
+    with pytest.raises(ValueError, match="init_critic_params: expected the critic's parameters"):
+        train(config, init_critic_params={"params": {}}, show_progress=False)
+
+
 def test_chunked_sweep_equals_one_chunk_and_compiles_once(small_sweep, capsys):
     programs._program.cache_clear()  # nothing compiled yet
     with xla_compiles() as compiled:

@@ -1,0 +1,324 @@
+"""Any function of one training run, evaluated for many runs at once on a trailing run axis.
+
+`runwise(fn)` traces `fn` for one run and evaluates its jaxpr again, operation by operation, for R
+runs whose arrays carry a trailing run axis `[..., R]`, where XLA's CPU backend vectorises over
+them (`jax.vmap` moves that axis to the front of matrix products and reshapes instead). On the way,
+the operations whose rounding depends on the shape of the whole array are written in a fixed
+order: sums (`reduce_sum`, and the contractions of matrix products) add a long axis one entry
+after another in a loop, a short one as a chain of additions or by halving (`sums.invariant_sum`).
+So a run rounds the same alone (no run axis) as beside any number of others, for any policy, loss
+or optimizer written in JAX.
+
+Each operation keeps its meaning: an operation without a rule here is evaluated by `jax.vmap`
+over the run axis (still exact, not necessarily in a fixed order). `fn` is traced once per shape
+of its arguments; differentiate inside it (`jax.grad` in `fn`), so that the backward pass's sums
+are rewritten too.
+"""
+
+import functools
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+from jax.extend import core
+
+from jaxpg import sums
+from jaxpg.types import Array, ArrayLike
+
+# A value of the jaxpr being evaluated, and whether it carries the trailing run axis.
+_Value = tuple[Any, bool]
+# A rule for an operation whose parameters name one run's shape or axes: (inputs, the equation's
+# parameters, runs) -> the output with its run axis, or None where the rule does not apply.
+_Rule = Callable[[list[_Value], dict[str, Any], int], Array | None]
+
+_ELEMENTWISE = frozenset("""
+    abs acos acosh add add_any and asin asinh atan atan2 atanh cbrt ceil clamp convert_element_type
+    copy copy_p cos cosh digamma div eq erf erf_inv erfc exp exp2 expm1 floor ge gt igamma imag
+    integer_pow is_finite le lgamma log log1p logistic lt max min mul ne neg nextafter not or pow
+    real reduce_precision rem round rsqrt select_n shift_left shift_right_arithmetic
+    shift_right_logical sign sin sinh sqrt square sub tan tanh xor
+""".split())
+# Reductions and scans along axes counted from the front: a trailing run axis leaves them alone.
+_ALONG_AXES = frozenset("""
+    argmax argmin cummax cummin cumlogsumexp cumprod cumsum reduce_and reduce_max reduce_min
+    reduce_or reduce_prod reduce_xor rev squeeze
+""".split())
+# Calls evaluated through their bodies; custom derivative rules are not needed, since `fn`
+# differentiates inside itself (its jaxpr holds the backward pass already).
+_CALLS = ("pjit", "jit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call")
+
+
+def runwise(fn: Callable[..., Any], batched: Any) -> Callable[..., Any]:
+    """`fn`, taking and returning pytrees of arrays, evaluated for several runs at once.
+
+    Args:
+      fn: a function of one run's arrays.
+      batched: a pytree of bools, a prefix of `fn`'s arguments (as a tuple): True where the
+        arrays carry a trailing run axis `[..., R]` (the same R for all), False where every run
+        shares them. With no True leaf, `fn` is evaluated for one run, in the same fixed order.
+
+    Returns:
+      A function of the arguments that returns `fn`'s outputs, each with a trailing run axis
+      `[..., R]` where any argument has one.
+    """
+
+    def wrapped(*args: Any) -> Any:
+        """`fn` of `args`, for every run at once."""
+        flags = _broadcast_prefix(batched, args)
+        leaves, tree = jax.tree.flatten(args)
+        run_sizes = {leaf.shape[-1] for leaf, b in zip(leaves, flags) if b}
+        if len(run_sizes) > 1:
+            raise ValueError(f"runwise: the run axes differ in size: {sorted(run_sizes)}")
+        runs = run_sizes.pop() if run_sizes else None
+        one_run = [jax.ShapeDtypeStruct(leaf.shape[:-1] if b else np.shape(leaf), leaf.dtype)
+                   for leaf, b in zip(leaves, flags)]
+        closed, out_shape = jax.make_jaxpr(
+            lambda *flat: fn(*jax.tree.unflatten(tree, flat)), return_shape=True)(*one_run)
+        values = _evaluate(closed.jaxpr, closed.consts, list(zip(leaves, flags)), runs)
+        outs = [_lift(value, b, runs) if runs else value for value, b in values]
+        return jax.tree.unflatten(jax.tree.structure(out_shape), outs)
+
+    return wrapped
+
+
+def _broadcast_prefix(prefix: Any, tree: Any) -> list[bool]:
+    """A bool per leaf of `tree`, from `prefix`, a pytree prefix of it."""
+    return jax.tree.leaves(jax.tree.map(
+        lambda flag, sub: jax.tree.map(lambda _: bool(flag), sub), prefix, tree))
+
+
+def _lift(x: ArrayLike, batched: bool, runs: int | None) -> Array:
+    """`x` with its trailing run axis: shared values are broadcast to every run."""
+    if batched:
+        return x  # type: ignore[return-value]  # (a batched value is an array)
+    x = jnp.asarray(x)
+    return lax.broadcast_in_dim(x, (*x.shape, runs), tuple(range(x.ndim)))
+
+
+def _to_shape(x: ArrayLike, batched: bool, shape: tuple[int, ...], runs: int) -> Array:
+    """An operand of an elementwise operation whose one-run result is `shape`, as `[*shape, R]`."""
+    x = jnp.asarray(x)
+    if batched and x.ndim == len(shape) + 1:
+        return x
+    if batched:  # one number per run
+        return lax.broadcast_in_dim(x, (*shape, runs), (len(shape),))
+    return lax.broadcast_in_dim(x, (*shape, runs), tuple(range(len(shape) - x.ndim, len(shape))))
+
+
+def _evaluate(jaxpr: core.Jaxpr, consts: Sequence[Any], args: Sequence[_Value],
+              runs: int | None) -> list[_Value]:
+    """The outputs of `jaxpr` as (value, batched) pairs, from `args`, (value, batched) pairs."""
+    env: dict[core.Var, _Value] = {}
+
+    def read(var: core.Var | core.Literal) -> _Value:
+        """A variable's (value, batched); a literal's value, shared by every run."""
+        if isinstance(var, core.Literal):
+            return var.val, False
+        return env[var]
+
+    for var, const in zip(jaxpr.constvars, consts):
+        env[var] = (const, False)
+    for var, arg in zip(jaxpr.invars, args):
+        env[var] = arg
+    for eqn in jaxpr.eqns:
+        ins = [read(var) for var in eqn.invars]
+        outs = _apply(eqn, ins, runs)
+        for var, out in zip(eqn.outvars, outs):
+            env[var] = out
+    return [read(var) for var in jaxpr.outvars]
+
+
+def _apply(eqn: core.JaxprEqn, ins: list[_Value], runs: int | None) -> list[_Value]:
+    """One equation's outputs as (value, batched) pairs."""
+    name, params = eqn.primitive.name, eqn.params
+    values = [value for value, _ in ins]
+    any_batched = any(b for _, b in ins)
+    if name in _CALLS:
+        inner = params["jaxpr"] if "jaxpr" in params else params["call_jaxpr"]
+        closed = inner if hasattr(inner, "consts") else core.ClosedJaxpr(inner, ())
+        return _evaluate(closed.jaxpr, closed.consts, ins, runs)
+    if name == "reduce_sum":
+        return [(_sum(values[0], params["axes"]), ins[0][1])]
+    if name == "scan" and any_batched:
+        return _scan(ins, params, runs)
+    if name == "dot_general":
+        return [(_dot(ins, params, runs), any_batched)]
+    if not any_batched:
+        return _bound(eqn, values)
+    assert runs is not None  # an argument has a run axis, of `runs` entries
+    rule = _RULES.get(name)
+    out = None if rule is None else rule(ins, params, runs)
+    if out is not None:
+        return [(out, True)]
+    if name in _ELEMENTWISE:
+        shape = eqn.outvars[0].aval.shape  # type: ignore[attr-defined]  # (a ShapedArray's)
+        return _bound(eqn, [_to_shape(v, b, shape, runs) for v, b in ins], batched=True)
+    if name in _ALONG_AXES:
+        return _bound(eqn, values, batched=True)
+    vmapped = jax.vmap(functools.partial(_bind, eqn), in_axes=[-1 if b else None for _, b in ins],
+                       out_axes=-1)
+    return [(out, True) for out in vmapped(*values)]
+
+
+def _scan(ins: list[_Value], params: dict[str, Any], runs: int | None) -> list[_Value]:
+    """`lax.scan` whose body is evaluated by `runwise` too, every carry and output with the run
+    axis (the scanned axis stays first, the run axis last)."""
+    body, consts = params["jaxpr"], ins[:params["num_consts"]]
+    num_carry = params["num_carry"]
+    carry = [_lift(v, b, runs) for v, b in ins[len(consts):len(consts) + num_carry]]
+    xs = ins[len(consts) + num_carry:]
+
+    def step(carry: list[Array], x: list[Any]) -> tuple[list[Array], list[Array]]:
+        """One step of the body, its outputs with the run axis."""
+        args = [*consts, *((c, True) for c in carry), *zip(x, (b for _, b in xs))]
+        outs = [_lift(v, b, runs) for v, b in _evaluate(body.jaxpr, body.consts, args, runs)]
+        return outs[:num_carry], outs[num_carry:]
+
+    carry, ys = lax.scan(step, carry, [v for v, _ in xs], length=params["length"],
+                         reverse=params["reverse"], unroll=params["unroll"])
+    return [(out, True) for out in (*carry, *ys)]
+
+
+def _bind(eqn: core.JaxprEqn, *values: Any) -> list[Any]:
+    """The equation's operation applied to `values`: a list of its outputs."""
+    outs = eqn.primitive.bind(*values, **eqn.params)
+    return outs if eqn.primitive.multiple_results else [outs]
+
+
+def _bound(eqn: core.JaxprEqn, values: Sequence[Any], batched: bool = False) -> list[_Value]:
+    """`_bind`'s outputs as (value, batched) pairs."""
+    return [(out, batched) for out in _bind(eqn, *values)]
+
+
+def _sum(x: Array, axes: Sequence[int]) -> Array:
+    """`x` summed over `axes` (of one run's axes) in a fixed order.
+
+    Over the first of them one entry after another where it is long, then over the others by
+    halving.
+    """
+    axes = tuple(axes)
+    if not axes:
+        return x
+    x = jnp.asarray(x)
+    if x.shape[axes[0]] > LOOPED_CONTRACTION:
+        x = jnp.moveaxis(x, axes[0], 0)
+        rest = tuple(a + (a < axes[0]) - 1 for a in axes[1:])
+
+        def add(i: Array, total: Array) -> Array:
+            """`total` plus entry `i` of the summed axis."""
+            return total + lax.dynamic_index_in_dim(x, i, keepdims=False)
+
+        return _sum(lax.fori_loop(1, x.shape[0], add, x[0]), rest)
+    return sums.invariant_sum(x, axes)
+
+
+LOOPED_CONTRACTION = 64  # a contracting axis longer than this is summed in a loop, in order
+
+
+def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
+    """`lax.dot_general` as products summed in a fixed order over the contracting axes.
+
+    Each operand is laid out as [contracting, batch, free] (plus the run axis), expanded against
+    the other's free axes. Products are summed over the first contracting axis one entry after
+    another: in a chain of multiply-adds where it is short (a layer's input features: XLA fuses
+    the chain into one kernel), in a loop where it is long (a batch of steps: the products of one
+    entry at a time in memory, rather than of all at once); then over the other contracting axes
+    by halving.
+    """
+    (x, x_batched), (y, y_batched) = ins
+    (x_contract, y_contract), (x_batch, y_batch) = params["dimension_numbers"]
+    x_ndim, y_ndim = np.ndim(x) - x_batched, np.ndim(y) - y_batched
+    x_free = [a for a in range(x_ndim) if a not in x_contract and a not in x_batch]
+    y_free = [a for a in range(y_ndim) if a not in y_contract and a not in y_batch]
+    contract = len(x_contract)
+    x = _arranged(x, x_batched, [*x_contract, *x_batch, *x_free],
+                  expand_at=x_ndim, count=len(y_free))
+    y = _arranged(y, y_batched, [*y_contract, *y_batch, *y_free],
+                  expand_at=contract + len(y_batch), count=len(x_free))
+    if x_batched != y_batched:
+        x, y = (_lift(x, x_batched, runs), _lift(y, y_batched, runs))
+    if not contract:
+        result = x * y
+    elif x.shape[0] > LOOPED_CONTRACTION:
+        def add(i: Array, total: Array) -> Array:
+            """`total` plus the products of entry `i` of the first contracting axis."""
+            return total + (lax.dynamic_index_in_dim(x, i, keepdims=False)
+                            * lax.dynamic_index_in_dim(y, i, keepdims=False))
+
+        result = _sum(lax.fori_loop(1, x.shape[0], add, x[0] * y[0]), tuple(range(contract - 1)))
+    else:  # a few features: one fused chain of multiply-adds, nothing in memory between them
+        result = x[0] * y[0]
+        for i in range(1, x.shape[0]):
+            result = result + x[i] * y[i]
+        result = _sum(result, tuple(range(contract - 1)))
+    dtype = params.get("preferred_element_type")
+    return result if dtype is None else result.astype(dtype)
+
+
+def _arranged(x: ArrayLike, batched: bool, order: Sequence[int], expand_at: int,
+              count: int) -> Array:
+    """One run's axes of `x` put in `order`, with `count` axes of size one inserted at `expand_at`.
+
+    A trailing run axis stays last.
+    """
+    x = jnp.asarray(x)
+    x = lax.transpose(x, (*order, *([x.ndim - 1] if batched else [])))
+    shape = (*x.shape[:expand_at], *(1,) * count, *x.shape[expand_at:])
+    dims = tuple(i if i < expand_at else i + count for i in range(x.ndim))
+    return lax.broadcast_in_dim(x, shape, dims)
+
+
+# --- Operations whose parameters name one run's shape or axes: the run axis appended. A rule
+# returns None where it does not apply, and `jax.vmap` evaluates the operation. ----------------
+
+
+def _broadcast_in_dim(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.broadcast_in_dim` to the shape with the run axis appended."""
+    (x, _), *dynamic = ins
+    shape = (*params["shape"], runs)
+    dims = (*params["broadcast_dimensions"], len(params["shape"]))
+    return lax.broadcast_in_dim(x, shape, dims)
+
+
+def _reshape(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.reshape` to the new sizes with the run axis appended."""
+    return lax.reshape(ins[0][0], (*params["new_sizes"], runs))
+
+
+def _transpose(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.transpose` with the run axis kept last."""
+    perm = params["permutation"]
+    return lax.transpose(ins[0][0], (*perm, len(perm)))
+
+
+def _slice(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.slice` with the whole run axis kept."""
+    strides = params["strides"]
+    return lax.slice(ins[0][0], (*params["start_indices"], 0), (*params["limit_indices"], runs),
+                     None if strides is None else (*strides, 1))
+
+
+def _pad(ins: list[_Value], params: dict[str, Any], runs: int) -> Array | None:
+    """`lax.pad` with the run axis unpadded; None for a padding value per run."""
+    (x, _), (value, value_batched) = ins
+    if value_batched:  # a padding value per run: left to `jax.vmap`
+        return None
+    return lax.pad(x, value, (*params["padding_config"], (0, 0, 0)))
+
+
+def _concatenate(ins: list[_Value], params: dict[str, Any], runs: int) -> Array:
+    """`lax.concatenate` of the operands, each with its run axis (shared ones broadcast)."""
+    return lax.concatenate([_lift(v, b, runs) for v, b in ins], params["dimension"])
+
+
+_RULES: dict[str, _Rule] = {
+    "broadcast_in_dim": _broadcast_in_dim,
+    "reshape": _reshape,
+    "transpose": _transpose,
+    "slice": _slice,
+    "concatenate": _concatenate,
+    "pad": _pad,
+}
