@@ -1,9 +1,9 @@
 """Writing files so that a failure, a kill or a second process never loses or mixes results.
 
-A run's results go to an output folder all or none. They are written to a staging folder beside
-it, and the staging folder then takes the output folder's place in one step, holding the run's
-files and the earlier files of other names (`jaxpg sweep` adds its comparison report to the
-sweep's folder as a second step). A reader sees the earlier folder or the new one, never a mix:
+A run's results go to an output folder all or none, and the folder holds one result. They are
+written to a staging folder beside it, and the staging folder then takes the output folder's place
+in one step, holding the run's files alone: whatever the earlier folder held is gone with it. A
+reader sees the earlier folder or the new one, never a mix:
 
 - On Linux the two folders trade places in one system call (`renameat2` with `RENAME_EXCHANGE`,
   through ctypes). A kill at any moment leaves the earlier folder or the new one in place, and
@@ -17,7 +17,8 @@ A lock (`fcntl.flock` on `.NAME.lock`, beside the folder) keeps a second process
 same folder while the first trains and writes; the second is refused at once. The lock is
 released when the process ends, so a killed run leaves nothing locked; whatever it left half
 done (`.NAME.staging-*` folders, and the `.staging-*` folders that jaxpg 0.1.0 left inside the
-output folder) is removed by the next run that takes the lock.
+output folder) is removed by the next run that takes the lock. Once `cancel` is called (Ctrl-C),
+no staging folder takes its output folder's place.
 
 Every single file jaxpg writes (checkpoints, animations, plots, kept programs) goes through
 `atomic_path`: the content is written to a temporary file in the same directory, flushed to disk,
@@ -40,6 +41,7 @@ import re
 import shutil
 import sys
 import tempfile
+import threading
 import uuid
 from collections.abc import Callable, Iterator, Mapping
 from typing import IO, Any
@@ -207,9 +209,9 @@ def staged(out: StrPath) -> Iterator[pathlib.Path]:
     """Replaces the output directory `out` all at once with the files written in the block.
 
     When the block ends without an error, the staging folder takes the place of `out` in one step,
-    holding the files written there and `out`'s earlier files of other names. `out` is claimed
+    holding the files written there alone: `out`'s earlier files are gone. `out` is claimed
     (`claim`) if it was not, and released at the end, whether the block ended in an error or not.
-    On an error `out` is left as it was.
+    On an error, or once `cancel` was called, `out` is left as it was.
 
     Args:
       out: the output directory, existing or not.
@@ -219,6 +221,7 @@ def staged(out: StrPath) -> Iterator[pathlib.Path]:
 
     Raises:
       ValueError: as `claim`.
+      KeyboardInterrupt: `cancel` was called, and `out` is left as it was.
     """
     out = claim(out)
     real = _real(out)
@@ -227,23 +230,25 @@ def staged(out: StrPath) -> Iterator[pathlib.Path]:
         staging.mkdir()
         yield staging
         if real.is_dir():
-            _carry_over(real, staging)
+            shutil.copymode(real, staging)
         _sync_folder(staging)
+        if _cancelled.is_set():
+            raise KeyboardInterrupt
         _replace(staging, real)
     finally:
         _remove(staging)  # after an exchange, the earlier folder
         _release(real)
 
 
-def _carry_over(old: pathlib.Path, new: pathlib.Path) -> None:
-    """Links into `new` the files of `old` of names that `new` lacks, and `old`'s permissions.
+_cancelled = threading.Event()  # set by `cancel`
 
-    Links, not copies: no file is read or written, and none that a reader has open changes.
+
+def cancel() -> None:
+    """From now on, no staging folder of `staged` takes its output folder's place (Ctrl-C).
+
+    Safe to call from any thread, and from a signal handler.
     """
-    for path in old.iterdir():
-        if not (new / path.name).exists() and not _LEGACY_STAGING.fullmatch(path.name):
-            os.link(path, new / path.name, follow_symlinks=False)
-    shutil.copymode(old, new)
+    _cancelled.set()
 
 
 def _sync_folder(folder: pathlib.Path) -> None:

@@ -13,6 +13,7 @@ import pathlib
 import re
 import signal
 import sys
+import threading
 import time
 import types
 import warnings
@@ -378,9 +379,9 @@ def _join_processes(args: argparse.Namespace) -> bool:
 def cmd_sweep(args: argparse.Namespace) -> None:
     """`jaxpg sweep`: trains seeds 0 to N-1 under every grid setting, and compares the settings.
 
-    Writes `metrics.npz`, `runs.csv`, `summary.json`, `sweep.png` and `policies.msgpack` into
-    `args.out` all at once, then the comparison report (`report.write`) where there are two seeds
-    or more. Over several processes (`--coordinator`), process 0 alone writes.
+    Writes `metrics.npz`, `runs.csv`, `summary.json`, `sweep.png`, `policies.msgpack` and, where
+    there are two seeds or more, the comparison report (`report.write`) into `args.out`, all at
+    once (`atomic_files.staged`). Over several processes (`--coordinator`), process 0 alone writes.
 
     Args:
       args: the parsed arguments of `build_parser`.
@@ -437,6 +438,14 @@ def cmd_sweep(args: argparse.Namespace) -> None:
         plots.sweep_curves(s.median, s.q25, s.q75, s.solved_by, labels, config.solved_return,
                            stage / "sweep.png")
         checkpoint.save_sweep(stage / checkpoint.SWEEP_FILENAME, swept, config)
+        # From the sweep's own files, into the same folder: one step puts both in place. A
+        # failing report (a diverged run's scores) never costs the runs: it is raised after.
+        comparison: dict[str, Any] | ValueError | None = None
+        if args.seeds >= 2:
+            try:
+                comparison = report.write([stage], stage, within=os.fspath(out))
+            except ValueError as error:
+                comparison = error
     held_out = {name: np.median(returns.mean(axis=-1), axis=1)
                 for name, returns in _held_out(swept).items()}
     for g, (label, solved, final) in enumerate(
@@ -447,11 +456,12 @@ def cmd_sweep(args: argparse.Namespace) -> None:
               f"{args.seeds} seeds")
     print(f"{s.final_return.size} runs in {seconds:.1f} s; wrote {out}/: metrics.npz, runs.csv, "
           f"summary.json, sweep.png, {checkpoint.SWEEP_FILENAME}")
-    if args.seeds < 2:
+    if comparison is None:
         print("no comparison report: its confidence intervals need at least 2 seeds")
         return
-    # Written after the sweep's own files, from them: a failing report never costs the runs.
-    print(report.format_report(report.write([out], out)))
+    if isinstance(comparison, ValueError):
+        raise comparison
+    print(report.format_report(comparison))
     print(f"wrote {out}/: {', '.join((report.COMPARISON_FILE, *report.PLOT_FILES))}")
 
 
@@ -870,12 +880,55 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
     print(f"{PROG}: warning: {text}", file=sys.stderr)
 
 
+_GRACE = 1.0  # seconds the command has to end itself after Ctrl-C, before it is ended
+_ending = threading.Lock()  # held by whichever thread ends the process
+_command = [PROG]  # how the "interrupted" line names the command, once it is parsed
+
+
+def _end(status: int, line: str | None = None) -> NoReturn:
+    """Ends the process at once with `status`, after `line` on stderr; once, from any thread.
+
+    At once: threads still compiling would be waited for at exit.
+    """
+    _ending.acquire()  # never released: a second caller waits for the end
+    if line is not None:
+        print(line, file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
+
+
+def _watch_ctrl_c() -> None:
+    """Ends the process `_GRACE` seconds after Ctrl-C, if the command has not ended itself.
+
+    A thread reads the signal from the wakeup file of the signal module, which it receives even
+    while the main thread runs a compiled program and cannot run the Python handler. From then on
+    no output folder is replaced (`atomic_files.cancel`), so the one given stays as it was even
+    where the KeyboardInterrupt was lost. Only from the main thread, before any other import of
+    jaxpg's.
+    """
+    read, write = os.pipe()
+    os.set_blocking(write, False)
+    signal.set_wakeup_fd(write, warn_on_full_buffer=False)
+
+    def watch() -> None:
+        while os.read(read, 1) != bytes([signal.SIGINT]):
+            pass
+        from jaxpg import atomic_files
+
+        atomic_files.cancel()
+        time.sleep(_GRACE)
+        _end(130, f"{' '.join(_command)}: interrupted")
+
+    threading.Thread(target=watch, daemon=True, name="jaxpg-ctrl-c").start()
+
+
 def main(argv: Sequence[str] | None = None) -> NoReturn:
     """The installed `jaxpg` command: runs one command, then exits with its status.
 
     As `run_command`, in a process given jaxpg's XLA setting for the runs the command trains
-    (`xla_options.configure_xla`), one-line warnings, and Ctrl-C ending it with status 130 and one
-    line.
+    (`xla_options.configure_xla`), one-line warnings, and Ctrl-C, at any moment, ending it within
+    `_GRACE` seconds with status 130 and one line, its output folder left as it was.
 
     Args:
       argv: the command line after `jaxpg`; by default `sys.argv[1:]`.
@@ -884,18 +937,21 @@ def main(argv: Sequence[str] | None = None) -> NoReturn:
       SystemExit: with the command's exit status (as `run_command`). After Ctrl-C the process
         ends at once instead (`os._exit`, status 130), waiting for no thread still compiling.
     """
-    from jaxpg import xla_options
+    signal.signal(signal.SIGINT, _interrupt)  # first: Ctrl-C during the imports too
+    _watch_ctrl_c()
+    try:
+        from jaxpg import xla_options
 
-    signal.signal(signal.SIGINT, _interrupt)
-    sys.unraisablehook = _unraisable
-    warnings.showwarning = _show_warning
-    args = build_parser().parse_args(argv)
-    xla_options.configure_xla(runs=_runs_at_once(args))
-    status = _execute(args)
-    if status == 130:  # at once: threads still compiling would be waited for at exit
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(status)
+        sys.unraisablehook = _unraisable
+        warnings.showwarning = _show_warning
+        args = build_parser().parse_args(argv)
+        _command[1:] = [args.command]
+        xla_options.configure_xla(runs=_runs_at_once(args))
+        status = _execute(args)  # (it says "interrupted" itself)
+    except KeyboardInterrupt:
+        _end(130, f"{' '.join(_command)}: interrupted")
+    if status == 130:
+        _end(status)
     sys.exit(status)
 
 

@@ -8,6 +8,7 @@ run's score is its held-out evaluation return where every folder has them (`eval
 `SOLVED_WINDOW` iterations; the report says which.
 """
 
+import contextlib
 import functools
 import json
 import os
@@ -351,15 +352,18 @@ def _bands(bands: Sequence[stats.Band], x_name: str) -> dict[str, np.ndarray]:
 
 
 def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confidence: float = 0.95,
-          reps: int = 2000, seed: int = 0) -> dict[str, Any]:
+          reps: int = 2000, seed: int = 0, within: str | None = None) -> dict[str, Any]:
     """Compares the folders and writes `comparison.json` and the plots of `PLOT_FILES` into `out`.
 
     Args:
       folders: folders written by `jaxpg sweep --out`, of one config.
-      out: the output folder (created if missing); the files replace those of the same names.
+      out: the output folder (created if missing), replaced whole (`atomic_files.staged`).
       confidence: the coverage of every interval, in (0, 1).
       reps: bootstrap resamples per interval.
       seed: seeds every bootstrap.
+      within: optional: the output folder that `out`, a staging folder of the caller's, is to
+        replace. The report is then written into `out` beside its files, and names `within`
+        wherever it would name `out` (as `jaxpg sweep` reports on its own folder).
 
     Returns:
       The comparison, as `compare` returns it.
@@ -367,25 +371,48 @@ def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confid
     Raises:
       ValueError: as `compare`, and for an `out` that is not a folder that can be written.
     """
-    out = atomic_files.check_out_dir(out)
-    comparison = compare(folders, confidence, reps, seed)
+    if within is None:
+        out = atomic_files.check_out_dir(out)
+    try:
+        comparison = compare(folders, confidence, reps, seed)
+    except ValueError as error:
+        if within is None:
+            raise
+        raise ValueError(str(error).replace(os.fspath(out), within)) from None
+    if within is not None:
+        comparison = _renamed(comparison, os.fspath(out), within)
+    with (contextlib.nullcontext(pathlib.Path(out)) if within is not None
+          else atomic_files.staged(out)) as stage:
+        _write_comparison(comparison, stage)
+    return comparison
+
+
+def _renamed(comparison: dict[str, Any], folder: str, name: str) -> dict[str, Any]:
+    """`comparison` with the folder `folder` called `name` (its folders and settings' folders)."""
+    def rename(given: str) -> str:
+        return name if given == folder else given
+
+    return {**comparison, "folders": [rename(f) for f in comparison["folders"]],
+            "settings": [{**s, "folder": rename(s["folder"])} for s in comparison["settings"]]}
+
+
+def _write_comparison(comparison: dict[str, Any], folder: pathlib.Path) -> None:
+    """Writes `comparison.json` and the plots of `PLOT_FILES` of `comparison` into `folder`."""
     labels = [setting["label"] for setting in comparison["settings"]]
     aggregates = {name: [np.array([s[key][part] for s in comparison["settings"]])
                          for part in ("estimate", "low", "high")]
                   for name, key in (("IQM", "iqm"), ("mean", "mean"))}
     curves, profiles = comparison["iqm_curves"], comparison["performance_profiles"]
-    with atomic_files.staged(out) as stage:
-        text = json.dumps(atomic_files.to_json(comparison), indent=2, allow_nan=False)
-        (stage / COMPARISON_FILE).write_text(text + "\n")
-        plots.aggregate_intervals(labels, aggregates, stage / PLOT_FILES[0], xlabel="return")
-        plots.performance_profiles(profiles["tau"], profiles["estimate"], profiles["low"],
-                                   profiles["high"], labels, stage / PLOT_FILES[1], xlabel="return")
-        plots.iqm_curves(curves["iteration"], curves["estimate"], curves["low"], curves["high"],
-                         labels, stage / PLOT_FILES[2], solved_return=comparison["solved_return"])
-        improvement = comparison["probability_of_improvement"]
-        plots.improvement_heatmap(improvement["probability"], labels, stage / PLOT_FILES[3],
-                                  low=improvement["low"], high=improvement["high"])
-    return comparison
+    text = json.dumps(atomic_files.to_json(comparison), indent=2, allow_nan=False)
+    (folder / COMPARISON_FILE).write_text(text + "\n")
+    plots.aggregate_intervals(labels, aggregates, folder / PLOT_FILES[0], xlabel="return")
+    plots.performance_profiles(profiles["tau"], profiles["estimate"], profiles["low"],
+                               profiles["high"], labels, folder / PLOT_FILES[1], xlabel="return")
+    plots.iqm_curves(curves["iteration"], curves["estimate"], curves["low"], curves["high"],
+                     labels, folder / PLOT_FILES[2], solved_return=comparison["solved_return"])
+    improvement = comparison["probability_of_improvement"]
+    plots.improvement_heatmap(improvement["probability"], labels, folder / PLOT_FILES[3],
+                              low=improvement["low"], high=improvement["high"])
 
 
 def format_report(comparison: dict[str, Any]) -> str:
