@@ -17,6 +17,11 @@ Steps count for the runs that train at once on a CPU, one block of runs per core
 (`schedule.cpu_blocks`); parameters and metrics for every run. A user's own module or a loss's
 critic adds what this cannot see without tracing it, as does the device memory of an accelerator,
 which a sweep's `memory_budget` bounds by XLA's own account (`sweeps.fitting_chunk_size`).
+
+Playing episodes without training (`evaluation_bytes`, `render_bytes`) keeps every step's record
+in memory: `EVAL_STEP_FLOATS` per step of each episode that plays at once, and a drawn episode
+`FRAME_BYTES` per frame besides. The default network's layers are bounded too, by what XLA's CPU
+compiler can build (`MAX_UNITS`).
 """
 
 import decimal
@@ -40,6 +45,16 @@ PARAMETER_COPIES = 5  # the parameters, their gradient, two moments and the trai
 METRIC_FLOATS = 16  # six metrics and up to two of a loss's own, kept twice (trained, returned)
 CALL_BYTES = 6000  # the host's bookkeeping of one call (docs/performance.md)
 USABLE_SHARE = 0.8  # of the machine's memory: the process and the system need the rest
+# Per step of an episode played without training: 37 bytes in float32 by `memory_analysis()` of
+# evaluate's program (1 to 4000 episodes, 200 to 4000 steps), about 9.3 floats.
+EVAL_STEP_FLOATS = 10
+# Per step of a drawn episode's full record (`rollout.rollout`): 78 bytes in float32, 19.5 floats.
+RECORD_FLOATS = 20
+FRAME_BYTES = 400 * 600 * 3  # one uint8 RGB frame of `render.render_frame`
+# Units per layer of the default network that XLA's CPU compiler builds: `jaxpg train --iterations
+# 1` takes 14 s with hidden 1000, 48 s with 2000 and 76 s with 4000; 10000 overflows the compiler's
+# stack after about 80 s (2-core CPU, jaxlib 0.10).
+MAX_UNITS = 4000
 
 
 def machine_memory() -> int | None:
@@ -60,7 +75,7 @@ def needed_bytes(config: TrainConfig, runs: int = 1) -> int:
     Returns:
       An int; it grows with iterations, episodes, max_steps, hidden units and runs.
     """
-    itemsize = np.dtype(jax.dtypes.canonicalize_dtype(float)).itemsize
+    itemsize = _itemsize()
     cores = schedule.usable_cores()
     alone = runs <= schedule.ALONE_PER_CORE * cores
     # A run alone plays whole vectors of episodes (`rollout.LANES`); a block, its runs side by side.
@@ -93,18 +108,70 @@ def check(config: TrainConfig, runs: int = 1, what: str = "1 run") -> None:
       what: how the message names the runs, such as "64 seeds x 2 settings".
 
     Raises:
-      ValueError: in one line, when training needs more memory (`needed_bytes`) than
-        `USABLE_SHARE` of the machine's.
+      ValueError: in one line, naming `hidden` for a layer of the default network wider than
+        `MAX_UNITS`, or when training needs more memory (`needed_bytes`) than `USABLE_SHARE` of
+        the machine's.
+    """
+    if config.policy is None and max(config.hidden, default=0) > MAX_UNITS:
+        raise ValueError(f"hidden: at most {MAX_UNITS} units per layer of the default network "
+                         f"(XLA's CPU compiler crashes on wider ones), got {config.hidden}")
+    network = "" if config.policy is not None else f", hidden {config.hidden}"
+    check_fits(needed_bytes(config, runs), "memory",
+               f"training {what} for {config.iterations} iterations of {config.episodes} "
+               f"episodes of at most {config.max_steps} steps{network}")
+
+
+def evaluation_bytes(episodes: int, max_steps: int, runs: int = 1) -> int:
+    """Estimated bytes of memory that playing `runs` x `episodes` episodes at once needs.
+
+    Args:
+      episodes: E, episodes per run.
+      max_steps: T, the longest an episode may run.
+      runs: how many policies (or physics settings) play at once.
+
+    Returns:
+      An int: `EVAL_STEP_FLOATS` floats per step of every episode.
+    """
+    # As Python ints: numpy's would overflow, and pass any check.
+    return int(runs) * int(episodes) * int(max_steps) * EVAL_STEP_FLOATS * _itemsize()
+
+
+def render_bytes(max_steps: int, env_steps: int) -> int:
+    """Estimated bytes of memory that drawing one episode of at most `max_steps` steps needs.
+
+    Args:
+      max_steps: the most steps drawn; the episode plays one step more.
+      env_steps: the environment's own time limit (`CartPoleParams.max_steps`), which also ends it.
+
+    Returns:
+      An int: the episode's record and its frames, at most `min(max_steps, env_steps) + 1`.
+    """
+    max_steps = int(max_steps)
+    frames = min(max_steps, int(env_steps)) + 1
+    return (max_steps + 1) * RECORD_FLOATS * _itemsize() + frames * FRAME_BYTES
+
+
+def check_fits(needed: int, name: str, doing: str) -> None:
+    """Checks that `needed` bytes fit in `USABLE_SHARE` of the machine's memory.
+
+    Args:
+      needed: the estimate, in bytes.
+      name: what the message names first: the argument that sets the size, or "memory".
+      doing: what needs the memory, such as "playing 10 episodes of at most 200 steps".
+
+    Raises:
+      ValueError: in one line, `name: doing needs about ...; this machine has ...`, when it does
+        not fit.
     """
     have = machine_memory()
-    needed = needed_bytes(config, runs)
     if have is not None and needed > USABLE_SHARE * have:
-        network = "" if config.policy is not None else f", hidden {config.hidden}"
-        raise ValueError(
-            f"memory: training {what} for {config.iterations} iterations of {config.episodes} "
-            f"episodes of at most {config.max_steps} steps{network} needs about "
-            f"{format_bytes(needed)}; this machine has {format_bytes(have)}, of which training "
-            f"may use {USABLE_SHARE:.0%}")
+        raise ValueError(f"{name}: {doing} needs about {format_bytes(needed)}; this machine has "
+                         f"{format_bytes(have)}, of which jaxpg may use {USABLE_SHARE:.0%}")
+
+
+def _itemsize() -> int:
+    """Bytes of a float of JAX's default dtype: 4, or 8 with `jax_enable_x64`."""
+    return np.dtype(jax.dtypes.canonicalize_dtype(float)).itemsize
 
 
 def check_memory_budget(memory_budget: Any) -> None:

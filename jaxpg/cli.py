@@ -12,6 +12,7 @@ import os
 import pathlib
 import re
 import signal
+import socket
 import sys
 import threading
 import time
@@ -348,13 +349,14 @@ def _join_processes(args: argparse.Namespace) -> bool:
 
     Args:
       args: the parsed arguments of `jaxpg sweep`: `--coordinator`, `--num-processes` and
-        `--process-id`, all given or none.
+        `--process-id`, all given or none, and `--coordinator-timeout`.
 
     Returns:
       True when this process writes the results: the only one, or process 0 of several.
 
     Raises:
-      ValueError: the three flags are not given together, or one is out of range.
+      ValueError: the three flags are not given together, or one is out of range, or (process
+        1 and up) nothing answers at the coordinator's address within the timeout.
     """
     flags = (args.coordinator, args.num_processes, args.process_id)
     if all(flag is None for flag in flags):
@@ -369,11 +371,34 @@ def _join_processes(args: argparse.Namespace) -> bool:
     check_int("num_processes", args.num_processes)
     if not 0 <= args.process_id < args.num_processes:
         raise ValueError(f"process_id: must be in [0, {args.num_processes}), got {args.process_id}")
+    check_int("coordinator_timeout", args.coordinator_timeout, 1, 2**31)
+    if args.process_id > 0:  # JAX would wait, then abort with a C++ dump
+        _reach(host.strip("[]"), int(port), args.coordinator_timeout)
     import jax
 
     jax.distributed.initialize(coordinator_address=args.coordinator,
-                               num_processes=args.num_processes, process_id=args.process_id)
+                               num_processes=args.num_processes, process_id=args.process_id,
+                               initialization_timeout=args.coordinator_timeout)
     return args.process_id == 0
+
+
+def _reach(host: str, port: int, timeout: int) -> None:
+    """Waits until a TCP connection to `host:port` opens, for at most `timeout` seconds.
+
+    Raises:
+      ValueError: in one line naming the address, when none opened in time.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        left = deadline - time.monotonic()
+        try:
+            socket.create_connection((host, port), timeout=max(left, 0.1)).close()
+            return
+        except OSError as error:
+            if left <= 0:
+                raise ValueError(f"coordinator: nothing answered at {host}:{port} within "
+                                 f"{timeout} s ({error.strerror or error})") from None
+        time.sleep(min(1.0, max(left, 0.0)))
 
 
 def cmd_sweep(args: argparse.Namespace) -> None:
@@ -734,6 +759,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--num-processes", type=int, help="processes taking part, one per host")
     p.add_argument("--process-id", type=int,
                    help="this process's number, 0 to N-1; 0 writes the results")
+    p.add_argument("--coordinator-timeout", type=int, default=60,
+                   help="seconds to wait for the other processes (default %(default)s)")
     p.set_defaults(handler=cmd_sweep)
 
     p = commands.add_parser("evaluate", help="evaluate a policy in jaxpg or in Gymnasium, or many "

@@ -7,6 +7,7 @@ init_states=...)` starts jaxpg's episodes from them.
 """
 
 import functools
+import math
 import re
 from collections.abc import Mapping
 from typing import Any, NamedTuple, TypeGuard, cast
@@ -19,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
-from jaxpg import cartpole, rng, rollout, sweeps, train_config
+from jaxpg import budget, cartpole, rng, rollout, sweeps, train_config
 from jaxpg.policies import PolicyNetwork, init_network, network_policy
 from jaxpg.types import Action, Observation, Params, Policy, PRNGKey
 from jaxpg.validation import check_choice, check_int
@@ -179,8 +180,9 @@ def evaluate(
 
     Raises:
       ValueError: one line naming the argument, for a policy that is not callable, an argument out
-        of range, `init_states` of another shape than `[E, 4]` or with backend "gymnasium", or
-        a policy that plays an action other than 0 or 1.
+        of range, episodes that need more memory than the machine's (`budget.evaluation_bytes`),
+        `init_states` of another shape than `[E, 4]` or with backend "gymnasium", or a policy
+        that plays an action other than 0 or 1.
     """
     if not callable(policy):
         raise ValueError(f"policy: must be a callable (obs, u) -> action, got {policy!r}")
@@ -189,6 +191,9 @@ def evaluate(
     check_int("seed", seed, 0, 2**32)
     check_choice("backend", backend, BACKENDS)
     env_params, env_id = resolve_env(env)
+    if backend == "jaxpg":
+        budget.check_fits(budget.evaluation_bytes(episodes, max_steps), "episodes",
+                          f"playing {episodes} episodes of at most {max_steps} steps at once")
     if backend == "gymnasium":
         if init_states is not None:
             raise ValueError(
@@ -434,8 +439,9 @@ def robustness(
 
     Raises:
       ValueError: one line naming the argument, for policies of other shapes than `network`'s, a
-        bad `env_grid` (`physics_settings`), an argument out of range, or a policy that plays an
-        action other than 0 or 1.
+        bad `env_grid` (`physics_settings`), an argument out of range, episodes that need more
+        memory than the machine's (`budget.evaluation_bytes`), or a policy that plays an action
+        other than 0 or 1.
     """
     check_int("episodes", episodes)
     check_int("max_steps", max_steps)
@@ -447,6 +453,11 @@ def robustness(
     network = PolicyNetwork() if network is None else network
     function, policy_params = _split_policies(policies, network)
     grid_shape = (1, 1) if function else jax.tree.leaves(policy_params)[0].shape[:2]
+    runs = math.prod(grid_shape) * len(settings)
+    # A block of runs plays at once; the returns of every run are kept.
+    needed = budget.evaluation_bytes(episodes, max_steps, BLOCK) + runs * episodes * 8
+    budget.check_fits(needed, "episodes", f"playing {episodes} episodes of at most {max_steps} "
+                      f"steps, {BLOCK} runs at once of {runs}")
     physics = {name: np.asarray([getattr(env_params.replace(**setting), name)
                                  for setting in settings], jnp.result_type(float))
                for name in train_config.PHYSICS}

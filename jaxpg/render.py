@@ -15,7 +15,7 @@ import jax
 import numpy as np
 import numpy.typing as npt
 
-from jaxpg import atomic_files, cartpole, rollout
+from jaxpg import atomic_files, budget, cartpole, rollout
 from jaxpg.atomic_files import StrPath
 from jaxpg.cartpole import CartPoleParams, CartPoleState
 from jaxpg.types import HostArray, Policy
@@ -198,9 +198,12 @@ def render_episode(policy: Policy, seed: int = 0, env_params: CartPoleParams = c
       each step.
 
     Raises:
-      ValueError: for a `max_steps` below 1, or a policy that gave an action other than 0 or 1.
+      ValueError: for a `max_steps` below 1 or one whose frames need more memory than the
+        machine's (`budget.render_bytes`), or a policy that gave an action other than 0 or 1.
     """
     check_int("max_steps", max_steps)
+    budget.check_fits(budget.render_bytes(max_steps, int(env_params.max_steps)), "max_steps",
+                      f"drawing an episode of at most {max_steps} steps")
     # One step more than drawn, so that the state after the last drawn step is observed too.
     episodes = rollout.rollout(jax.random.PRNGKey(seed), policy, env_params, 1, max_steps + 1)
     rollout.check_played_actions(episodes.invalid_action)

@@ -2,11 +2,13 @@
 
 import dataclasses
 
+import jax
 import numpy as np
 import pytest
 from conftest import xla_compiles
 
-from jaxpg import TrainConfig, budget, programs, train
+from jaxpg import TrainConfig, budget, cartpole, policies, programs, train
+from jaxpg.evaluation import _as_argument, _jaxpg_returns
 from jaxpg.sweeps import device_bytes
 
 
@@ -33,7 +35,7 @@ def test_the_estimate_of_a_run_is_near_what_xla_lays_out():
 @pytest.mark.parametrize("changes, runs, asked", [
     ({"episodes": 10**9}, 1, "training 1 run for 150 iterations of 1000000000 episodes of at "
                              "most 200 steps, hidden (5,) needs about"),
-    ({"hidden": (10**8,)}, 1, "hidden (100000000,) needs about"),
+    ({"hidden": (4000,) * 1000}, 1, "hidden (4000, 4000, 4000,"),
     ({"iterations": 10**9}, 1, "for 1000000000 iterations"),
     ({}, 2**32, "training 4294967296 runs for"),
 ])
@@ -66,3 +68,27 @@ def test_bad_memory_budgets_are_refused(value, match):
                                          (3 * 2**30, "3 GiB"), (10**400, "8.674e+381 EiB")])
 def test_sizes_are_written_in_binary_units(count, text):
     assert budget.format_bytes(count) == text
+
+
+def test_the_evaluation_estimate_is_near_what_xla_lays_out():
+    """Within a factor of two of XLA's account of `evaluate`'s program."""
+    compiled = _jaxpg_returns.lower(
+        jax.random.PRNGKey(0), cartpole.V1, None, _as_argument(policies.basic_policy), 300,
+        100).compile()
+    memory = compiled.memory_analysis()
+    measured = memory.temp_size_in_bytes + memory.output_size_in_bytes
+    assert measured / 2 < budget.evaluation_bytes(300, 100) < 2 * measured
+
+
+def test_a_drawing_counts_its_frames_up_to_the_environments_limit():
+    # 200 steps: 201 records of 20 floats and 201 frames; past the limit of 500, 501 frames.
+    item = budget._itemsize()
+    assert budget.render_bytes(200, 500) == 201 * 20 * item + 201 * budget.FRAME_BYTES
+    assert budget.render_bytes(10**4, 500) == 10001 * 20 * item + 501 * budget.FRAME_BYTES
+
+
+def test_layers_wider_than_the_compiler_builds_are_refused_by_name():
+    with pytest.raises(ValueError, match=rf"^hidden: at most {budget.MAX_UNITS} units .* got "
+                                         rf"\(5, {budget.MAX_UNITS + 1}\)$"):
+        budget.check(TrainConfig(hidden=(5, budget.MAX_UNITS + 1)))
+    budget.check(TrainConfig(hidden=(budget.MAX_UNITS,), episodes=1, max_steps=10))

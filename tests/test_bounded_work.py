@@ -1,0 +1,56 @@
+"""Work that cannot fit in memory or compile, and a coordinator that does not answer, end in one
+line with exit status 2, before anything compiles or hangs."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import xla_compiles
+
+from jaxpg import budget, cartpole, evaluate, policies, robustness
+from jaxpg.render import render_episode
+
+# Far beyond any machine: 10**12 episodes of 200 steps are 8 * 10**15 bytes at 40 bytes a step.
+HUGE = 10**12
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "jaxpg.cli", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+@pytest.mark.parametrize("args, starts", [
+    (["evaluate", "--episodes", str(HUGE)], "jaxpg evaluate: error: episodes: playing "
+                                            f"{HUGE} episodes of at most 200 steps"),
+    (["render", "--max-steps", str(HUGE)], "jaxpg render: error: max_steps: drawing an episode "
+                                           f"of at most {HUGE} steps"),
+    (["train", "--hidden", "10000", "--iterations", "1", "--no-cache"],
+     f"jaxpg train: error: hidden: at most {budget.MAX_UNITS} units per layer"),
+    (["sweep", "--coordinator", "127.0.0.1:9", "--num-processes", "2", "--process-id", "1",
+      "--coordinator-timeout", "1"],
+     "jaxpg sweep: error: coordinator: nothing answered at 127.0.0.1:9 within 1 s"),
+])
+def test_the_command_line_refuses_in_one_line(args, starts, tmp_path):
+    finished = _run(*args, "--out", str(tmp_path / ("x.gif" if args[0] == "render" else "out")))
+    assert finished.returncode == 2
+    assert finished.stderr.startswith(starts) and finished.stderr.count("\n") == 1
+    assert not (tmp_path / "out").exists() and not (tmp_path / "x.gif").exists()
+
+
+@pytest.mark.parametrize("play", [
+    lambda: evaluate(policies.basic_policy, episodes=HUGE),
+    lambda: evaluate(policies.basic_policy, episodes=np.int64(HUGE), max_steps=np.int64(HUGE)),
+    lambda: robustness(policies.basic_policy, {"length": [0.5, 1.0]}, episodes=HUGE),
+])
+def test_evaluation_refuses_before_anything_compiles(play):
+    with xla_compiles() as compiled, pytest.raises(ValueError, match="^episodes: playing "):
+        play()
+    assert not compiled
+
+
+def test_render_refuses_before_anything_compiles():
+    long_env = cartpole.V1.replace(max_steps=HUGE)
+    with xla_compiles() as compiled, pytest.raises(ValueError, match="^max_steps: drawing "):
+        render_episode(policies.basic_policy, env_params=long_env, max_steps=10**6)
+    assert not compiled
