@@ -514,6 +514,8 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
     if not steps_on_gradients(optimizer):
         raise ValueError("optimizer: the function's optimizer asks for more than the gradient, "
                          "its state and the parameters in its update (as optax's lbfgs does)")
+    if config.hand_gradient:  # optax's own elementwise optimizer on the default network
+        return ()
     params, opt_state = jax.eval_shape(
         lambda key: init_run(config, key, config.hyperparams),
         jax.ShapeDtypeStruct((2,), jnp.uint32))
@@ -527,8 +529,6 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
             or shapes[0] != shapes[1]):
         raise ValueError(f"optimizer: its update must return updates of the parameters' tree "
                          f"and shapes, {shapes[0]}, got {shapes[1]}")
-    if config.hand_gradient:
-        return ()
     floats = jnp.result_type(float)
     hyper = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((), leaf.dtype),
                          config.hyperparams.per_run())
