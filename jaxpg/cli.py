@@ -431,7 +431,8 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
     swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet,
-                  memory_budget=args.memory_budget, eval_episodes=args.eval_episodes)
+                  memory_budget=args.memory_budget, eval_episodes=args.eval_episodes,
+                  eval_physics=args.eval_physics)
     seconds = time.perf_counter() - start
     if not writes_results:
         return
@@ -753,6 +754,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="runs/sweep", help="output directory (default %(default)s)")
     p.add_argument("--eval-episodes", type=int, default=0, help="held-out episodes each run's "
                    "final policy plays, sampled and greedy (default none)")
+    p.add_argument("--eval-physics", choices=["training", "base"], default="training",
+                   help="held-out episodes in each run's training physics, ranges drawn as in "
+                   "training, or in its base physics without them (default %(default)s)")
     p.add_argument("--memory-budget", type=_bytes, help="memory per device for training, e.g. 2G; "
                    "the runs train in chunks that fit it (default: all at once)")
     p.add_argument("--coordinator", help="HOST:PORT of process 0, to sweep over several hosts")

@@ -266,17 +266,20 @@ class Evaluation(NamedTuple):
 
 
 def evaluate_runs(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams,
-                  episodes: int) -> Evaluation:
+                  episodes: int, randomized: bool = True) -> Evaluation:
     """R runs' current policies, each on `episodes` fresh episodes of its own.
 
     Each run's episodes come from its key with `EVALUATION` folded in and play in its training
-    physics without randomisation.
+    physics: with `config.randomize`, each episode draws its physics from the same ranges as in
+    training (from the key with `EVALUATION` folded in twice), unless `randomized` is False.
 
     Args:
       config: the `TrainConfig`.
       train_state: `TrainState` of the R runs.
       hyperparams: `Hyperparams` with `[R]` leaves.
       episodes: how many episodes each run plays, static.
+      randomized: static: False plays the runs' physics without drawing `config.randomize`'s
+        fields (the config's physics, with the run's grid values).
 
     Returns:
       `Evaluation` with `[R, episodes]` returns; a run plays the same episodes alone as beside
@@ -286,12 +289,17 @@ def evaluate_runs(config: TrainConfig, train_state: TrainState, hyperparams: Hyp
     params = _without_run_axis(train_state.params) if alone else train_state.params
     keys = jax.vmap(lambda key: jax.random.fold_in(key, EVALUATION))(train_state.key)
     policy = _policy(config, params, alone)
+    env_params = _physics(config, hyperparams, alone)
+    if config.randomize and randomized:
+        drawn = -(-episodes // rollout.LANES) * rollout.LANES if alone else episodes
+        key_physics = jax.vmap(lambda key: jax.random.fold_in(key, EVALUATION))(keys)
+        env_params = _randomized(config.randomize, env_params,
+                                 key_physics[0] if alone else key_physics, drawn)
 
     def returns(policy: Policy) -> Array:
         """The returns `[R, episodes]` of the runs' episodes played by `policy`."""
-        played = rollout.rollout(keys[0] if alone else keys, policy,
-                                 _physics(config, hyperparams, alone), episodes, config.max_steps,
-                                 lanes=rollout.LANES if alone else 1).returns
+        played = rollout.rollout(keys[0] if alone else keys, policy, env_params, episodes,
+                                 config.max_steps, lanes=rollout.LANES if alone else 1).returns
         return played[None] if alone else jnp.moveaxis(played, -1, 0)
 
     return Evaluation(returns(policy),

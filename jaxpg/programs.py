@@ -42,7 +42,8 @@ class Program(NamedTuple):
         `count` iterations (at most `ITERATIONS_PER_CALL`), whose metrics' leaves, stacked
         `[ITERATIONS_PER_CALL, fields, R]` in one array, fill its first `count` rows. It consumes
         (donates) the state it is given.
-      evaluate: `(TrainState, Hyperparams [R], episodes: static int) -> Evaluation [R, N]`.
+      evaluate: `(TrainState, Hyperparams [R], episodes: static int, randomized: static bool)
+        -> Evaluation [R, N]` (`iteration.evaluate_runs`).
     """
 
     config: TrainConfig
@@ -169,7 +170,8 @@ def _program(config: TrainConfig) -> Program:
                "init"),
         AloneOrTogether(stored(jit_iterate(None), "iterate_alone"),
                         stored(jit_iterate(TOGETHER_OPTIONS), "iterate")),
-        jax.jit(functools.partial(evaluate_runs, config), static_argnames="episodes"),
+        jax.jit(functools.partial(evaluate_runs, config),
+                static_argnames=("episodes", "randomized")),
     )
 
 

@@ -69,7 +69,7 @@ def train_blocks(
     program: Program, iterations: int, parts: Sequence[Part],
     on_iteration: Callable[[int, Metrics], None] | None = None,
     policy_params: Params | None = None, eval_episodes: int = 0,
-    critic_params: Params | None = None,
+    critic_params: Params | None = None, eval_randomized: bool = True,
 ) -> list[TrainResult]:
     """Trains each part's runs for `iterations` iterations, every part on its own device.
 
@@ -89,6 +89,7 @@ def train_blocks(
       critic_params: optional parameters of one run's critic that every run's critic starts
         from.
       eval_episodes: how many held-out episodes each run's final policy plays (`Program.evaluate`).
+      eval_randomized: whether they draw the config's randomised physics (`Program.evaluate`).
 
     Returns:
       One `TrainResult` per part, with numpy leaves `[R_p, ...]`, metrics `[R_p, iterations]`
@@ -131,7 +132,8 @@ def train_blocks(
                     progress_made.notify_all()
             for i in indices:
                 evaluations[i] = jax.device_get(
-                    program.evaluate(states[i], blocks[i][1], episodes=eval_episodes)
+                    program.evaluate(states[i], blocks[i][1], episodes=eval_episodes,
+                                     randomized=eval_randomized)
                     if eval_episodes else None)
                 finals[i] = jax.device_get(states[i])
         except BaseException:

@@ -29,9 +29,10 @@ from jaxpg import (
     xla_options,
 )
 from jaxpg.types import Params
-from jaxpg.validation import check_int, check_number
+from jaxpg.validation import check_choice, check_int, check_number
 
 GRID_FIELDS = (*train_config.HYPERPARAMETERS, *train_config.PHYSICS)
+EVAL_PHYSICS = ("training", "base")  # what `sweep`'s held-out episodes play in
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
 
 # A grid of settings (`expand_grid`): None, a dict of field to one value or a sequence of values,
@@ -270,6 +271,7 @@ def sweep(
     eval_episodes: int = 0,
     init_params: Params | None = None,
     init_critic_params: Params | None = None,
+    eval_physics: str = "training",
 ) -> SweepResult:
     """Trains every seed under every grid setting, on every device, in chunks that fit a budget.
 
@@ -292,6 +294,10 @@ def sweep(
         every run's policy starts from; the optimizer starts afresh.
       init_critic_params: optional parameters of the loss's critic (a result's
         `critic_params` of one run) that every run's critic starts from.
+      eval_physics: the physics of the held-out episodes: "training" (the default), each run's
+        own, every episode drawing `config.randomize`'s fields from their ranges as in training;
+        or "base", each run's own without drawing them (the config's physics and the run's grid
+        values).
 
     Returns:
       `SweepResult` with `[G, S, ...]` leaves, the `Summary` (and with `eval_episodes`, the
@@ -304,6 +310,7 @@ def sweep(
     """
     seeds, settings = check_arguments(config, seeds, grid, memory_budget)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
+    check_choice("eval_physics", eval_physics, EVAL_PHYSICS)
     if init_params is not None:
         init_params = reinforce.check_init_params(config, init_params)
     if init_critic_params is not None:
@@ -328,7 +335,8 @@ def sweep(
         with progress.bar(config.iterations, show_progress, label=label) as shown:
             part = train_on_devices(program, config.iterations, _take(inputs, indices),
                                     progress.together(shown, on_iteration), eval_episodes,
-                                    (init_params, init_critic_params))
+                                    (init_params, init_critic_params),
+                                    eval_physics == "training")
         if result is None:
             result = jax.tree.map(
                 lambda leaf: np.empty((num_runs, *leaf.shape[1:]), leaf.dtype), part)
@@ -414,6 +422,7 @@ def train_on_devices(
     on_iteration: OnIteration | None = None,
     eval_episodes: int = 0,
     start_from: tuple[Params | None, Params | None] = (None, None),
+    eval_randomized: bool = True,
 ) -> iteration.TrainResult:
     """Trains runs `[C]`, a multiple of the device count, on every device of every process.
 
@@ -429,6 +438,7 @@ def train_on_devices(
       on_iteration: optional `(iteration, metrics) -> None` for this process's runs.
       eval_episodes: N: held-out episodes each run's final policy plays after training (0: none).
       start_from: optional parameters of one run's (policy, critic) that every run starts from.
+      eval_randomized: whether the held-out episodes draw `config.randomize`'s physics.
 
     Returns:
       `TrainResult` with numpy leaves `[C, ...]` (and with `eval_episodes`, its `Evaluation`
@@ -442,7 +452,7 @@ def train_on_devices(
               for i in range(len(devices))]
     parts = [jax.device_put(_take(inputs, share), device) for share, device in zip(shares, devices)]
     local = schedule.train_blocks(program, iterations, parts, on_iteration, start_from[0],
-                                  eval_episodes, start_from[1])
+                                  eval_episodes, start_from[1], eval_randomized)
     local = jax.tree.map(lambda *leaves: np.concatenate(leaves), *local)
     return multihost_utils.process_allgather(local, tiled=True)
 

@@ -237,3 +237,24 @@ def test_held_out_episodes_are_each_runs_own_alike_alone_and_in_a_sweep():
     assert sweep(config, seeds=range(2), show_progress=False).eval_returns is None
     with pytest.raises(ValueError, match="eval_episodes: must be an integer"):
         sweep(config, seeds=range(2), eval_episodes=-1, show_progress=False)
+
+
+def test_held_out_episodes_draw_the_training_ranges_unless_asked_for_the_base_physics():
+    config = dataclasses.replace(PHYSICS_CONFIG, iterations=5,
+                                 randomize={"length": (0.1, 3.0), "force_mag": (2.0, 30.0)})
+    drawn = sweep(config, seeds=range(6), eval_episodes=20, show_progress=False)
+    base = sweep(config, seeds=range(6), eval_episodes=20, eval_physics="base",
+                 show_progress=False)
+    np.testing.assert_array_equal(drawn.policy_params["params"]["Dense_0"]["kernel"],
+                                  base.policy_params["params"]["Dense_0"]["kernel"])
+    assert not np.array_equal(drawn.eval_returns, base.eval_returns)
+    unrandomised = dataclasses.replace(config, randomize={})
+    plain = sweep(unrandomised, seeds=range(2), eval_episodes=20, show_progress=False)
+    np.testing.assert_array_equal(
+        plain.eval_returns, sweep(unrandomised, seeds=range(2), eval_episodes=20,
+                                  eval_physics="base", show_progress=False).eval_returns)
+    alone = sweep(config, seeds=range(2), eval_episodes=20, show_progress=False)  # runs alone
+    np.testing.assert_array_equal(alone.eval_returns[0], drawn.eval_returns[0, :2])
+    with pytest.raises(ValueError, match="eval_physics"):
+        sweep(config, seeds=range(2), eval_episodes=2, eval_physics="default",
+              show_progress=False)
