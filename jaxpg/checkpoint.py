@@ -151,18 +151,25 @@ def _target(path: str | os.PathLike[str], name: str) -> pathlib.Path:
 
 
 def save_sweep(
-    path: str | pathlib.Path, swept: "sweeps.SweepResult", config: train_config.TrainConfig
+    path: str | pathlib.Path, swept: "sweeps.SweepResult",
+    config: train_config.TrainConfig | None = None,
 ) -> pathlib.Path:
     """Saves every run of a sweep (`SweepResult`) in one file, `[G, S, ...]` (`save`'s `runs`).
 
     Args:
       path: the file to write, or an existing directory to write `policies.msgpack` in.
       swept: the sweep's result.
-      config: the `TrainConfig` that the sweep shared.
+      config: the `TrainConfig` that the sweep shared; by default the result's own.
 
     Returns:
       The `pathlib.Path` written: `path`, or `path/policies.msgpack` for a directory.
+
+    Raises:
+      ValueError: naming `config` where neither it nor the result has one.
     """
+    config = swept.config if config is None else config
+    if config is None:
+        raise ValueError("config: the sweep's result carries none; pass its TrainConfig")
     runs = SweepRuns(grid=[{name: float(value) for name, value in setting.items()}
                            for setting in swept.grid],
                      seeds=[int(seed) for seed in swept.seeds])

@@ -318,7 +318,8 @@ def test_no_regular_file_is_refused_without_reading(tmp_path):
 
 
 def test_a_sweeps_runs_in_one_file(tmp_path, small_sweep):
-    path = checkpoint.save_sweep(tmp_path, small_sweep, SMALL_CONFIG)
+    path = checkpoint.save_sweep(tmp_path, small_sweep)  # the result's own config
+    assert small_sweep.config == SMALL_CONFIG
     assert path == tmp_path / "policies.msgpack"
     payload, _ = _content(path)
     assert payload["runs"]["seeds"] == [0, 1, 2, 3, 4]
@@ -333,6 +334,8 @@ def test_a_sweeps_runs_in_one_file(tmp_path, small_sweep):
                         jax.tree.map(lambda leaf: leaf[1, 3], small_sweep.policy_params))
     assert run.config == dataclasses.replace(SMALL_CONFIG, learning_rate=0.02)
     assert run.metrics.mean_return.shape == (3,) and run.grid is None
+    with pytest.raises(ValueError, match="config: the sweep's result carries none"):
+        checkpoint.save_sweep(tmp_path, small_sweep._replace(config=None))
 
 
 def test_a_sweeps_run_takes_its_physics_and_bad_runs_are_refused(tmp_path):
