@@ -13,6 +13,17 @@ from jaxpg.train_config import Hyperparams, TrainConfig
 
 gym.register()
 
+
+def __getattr__(name: str) -> object:
+    """`save_sweep` (`jaxpg.results`), imported on first use: it imports scipy and matplotlib,
+    which `import jaxpg` does without."""
+    if name == "save_sweep":
+        from jaxpg.results import save_sweep
+
+        return save_sweep
+    raise AttributeError(f"module 'jaxpg' has no attribute {name!r}")
+
+
 __all__ = [
     "EvalResult",
     "Hyperparams",
@@ -28,6 +39,7 @@ __all__ = [
     "keep_programs",
     "losses",
     "robustness",
+    "save_sweep",
     "sweep",
     "train",
 ]

@@ -29,7 +29,6 @@ if TYPE_CHECKING:  # (the commands import jaxpg's modules when they run, not on 
     import flax.linen as nn
 
     from jaxpg.evaluation import Robustness
-    from jaxpg.sweeps import SweepResult
     from jaxpg.train_config import TrainConfig
     from jaxpg.types import Params, Policy
 
@@ -415,8 +414,7 @@ def cmd_sweep(args: argparse.Namespace) -> None:
       ValueError: a bad argument, before anything is written or compiled.
     """
     writes_results = _join_processes(args)  # first: it must come before JAX computes anything
-    from jaxpg import atomic_files, checkpoint, plots
-    from jaxpg.reinforce import first_nonfinite
+    from jaxpg import atomic_files, checkpoint
     from jaxpg.sweeps import check_arguments, sweep
 
     check_int("seeds", args.seeds)
@@ -426,7 +424,8 @@ def cmd_sweep(args: argparse.Namespace) -> None:
             **_physics_settings(args)[0]}
     # Before anything is written, traced or allocated.
     check_arguments(config, range(args.seeds), grid, args.memory_budget)
-    from jaxpg import report  # after the checks: it imports scipy, which is slow to import
+    # After the checks: they import scipy, which is slow to import.
+    from jaxpg import report, results
     out = (atomic_files.claim if writes_results else atomic_files.check_out_dir)(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
     start = time.perf_counter()
@@ -436,46 +435,18 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     seconds = time.perf_counter() - start
     if not writes_results:
         return
+    # The folder is in place before a failing report (a diverged run's scores) is raised.
+    comparison: dict[str, Any] | ValueError | None
+    try:
+        comparison = results.save_sweep(swept, out, seconds)
+    except ValueError as error:
+        comparison = error
     s = swept.summary
-    labels = [report.setting_label(g) for g in swept.grid]
-    with atomic_files.staged(out) as stage:
-        # (numpy's stubs let `**` arguments fill `allow_pickle`, a bool, which these never name.)
-        np.savez_compressed(
-            stage / "metrics.npz", seeds=swept.seeds,
-            **{name: [g[name] for g in swept.grid] for name in swept.grid[0]},  # type: ignore[arg-type]
-            **swept.metrics.columns(), **_held_out(swept))  # type: ignore[arg-type]
-        num_settings, num_seeds = s.final_return.shape
-        atomic_files.write_csv(stage / "runs.csv", {
-            **{name: np.repeat([g[name] for g in swept.grid], num_seeds) for name in swept.grid[0]},
-            "seed": np.tile(swept.seeds, num_settings),
-            "last_10_mean_return": s.final_return.ravel(),
-            "first_solved_iteration": s.first_solved.ravel(),
-            "first_nonfinite_iteration": first_nonfinite(swept.metrics).ravel(),
-            **{f"{name}_mean": returns.mean(axis=-1).ravel()
-               for name, returns in _held_out(swept).items()},
-        })
-        atomic_files.write_json(stage / "summary.json", {
-            "format": report.SWEEP_FORMAT,
-            "config": checkpoint.config_to_dict(config), "seeds": args.seeds, "seconds": seconds,
-            "grid": swept.grid, "fraction_solved": s.fraction_solved,
-            "median_last_10_mean_return": np.median(s.final_return, axis=1),
-            "median": s.median, "q25": s.q25, "q75": s.q75, "solved_by": s.solved_by,
-        })
-        plots.sweep_curves(s.median, s.q25, s.q75, s.solved_by, labels, config.solved_return,
-                           stage / "sweep.png")
-        checkpoint.save_sweep(stage / checkpoint.SWEEP_FILENAME, swept, config)
-        # From the sweep's own files, into the same folder: one step puts both in place. A
-        # failing report (a diverged run's scores) never costs the runs: it is raised after.
-        comparison: dict[str, Any] | ValueError | None = None
-        if args.seeds >= 2:
-            try:
-                comparison = report.write([stage], stage, within=os.fspath(out))
-            except ValueError as error:
-                comparison = error
     held_out = {name: np.median(returns.mean(axis=-1), axis=1)
-                for name, returns in _held_out(swept).items()}
+                for name, returns in results.held_out(swept).items()}
     for g, (label, solved, final) in enumerate(
-            zip(labels, s.fraction_solved, np.median(s.final_return, axis=1))):
+            zip(map(report.setting_label, swept.grid), s.fraction_solved,
+                np.median(s.final_return, axis=1))):
         beside = "".join(f", {name.replace('_', ' ')} {medians[g]:.1f}"
                          for name, medians in held_out.items())
         print(f"{label}: median last-10 mean return {final:.1f}{beside}, solved {solved:.0%} of "
@@ -489,15 +460,6 @@ def cmd_sweep(args: argparse.Namespace) -> None:
         raise comparison
     print(report.format_report(comparison))
     print(f"wrote {out}/: {', '.join((report.COMPARISON_FILE, *report.PLOT_FILES))}")
-
-
-def _held_out(swept: "SweepResult") -> dict[str, np.ndarray]:
-    """The sweep's held-out returns by name, `[G, S, N]`: none where it played none."""
-    if swept.eval_returns is None:
-        return {}
-    # (Played together: eval_greedy_returns is None where eval_returns is.)
-    return {"eval_returns": swept.eval_returns,
-            "eval_greedy_returns": cast(np.ndarray, swept.eval_greedy_returns)}
 
 
 def cmd_compare(args: argparse.Namespace) -> None:

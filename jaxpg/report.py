@@ -1,11 +1,12 @@
-"""A comparison report of sweep folders: how each setting scores, and how sure the ranking is.
+"""A comparison report of sweeps: how each setting scores, and how sure the ranking is.
 
-It reads folders as `jaxpg sweep --out DIR` writes them (`summary.json`, `metrics.npz`). Every
-setting of every folder is a unit of the comparison; the folders must share one configuration but
-for the grid fields (learning rate, discount) and their seeds, and are never merged otherwise. Each
-run's score is its held-out evaluation return where every folder has them (`eval_returns`,
-`[G, S, N]`, averaged over the N episodes), otherwise its training mean return over the last
-`SOLVED_WINDOW` iterations; the report says which.
+It compares `SweepResult`s and folders as `jaxpg sweep --out DIR` writes them (`summary.json`,
+`metrics.npz`). Every setting of every sweep is a unit of the comparison, named by the config
+fields and grid values in which the units differ (a loss, a policy, an optimizer, physics,
+hyperparameters); sweeps are never merged. They must share the iteration count, the solved return
+and the kind of score: each run's score is its held-out evaluation return where every sweep has
+them (`eval_returns`, `[G, S, N]`, averaged over the N episodes), otherwise its training mean
+return over the last `SOLVED_WINDOW` iterations; the report says which.
 """
 
 import contextlib
@@ -19,9 +20,8 @@ from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 
-from jaxpg import atomic_files, plots, safe_read, stats
-from jaxpg.sweeps import SOLVED_WINDOW
-from jaxpg.train_config import HYPERPARAMETERS
+from jaxpg import atomic_files, cartpole, checkpoint, plots, safe_read, stats
+from jaxpg.sweeps import SOLVED_WINDOW, SweepResult
 from jaxpg.validation import check_finite
 
 # summary.json's "format": the folders this version writes and reads.
@@ -38,16 +38,18 @@ _MAX_SUMMARY_BYTES = 2**28
 _MAX_ARRAY_BYTES = 2**32
 # The words for the JSON values that a message does not quote.
 _JSON_TYPES = {dict: "an object", list: "an array", bool: "a boolean", type(None): "null"}
+# What `compare` takes: a sweep folder or a `SweepResult`.
+Source = str | os.PathLike[str] | SweepResult
 # Iterations a curve's band is computed at, evenly spaced with the first and last: the bootstrap's
 # cost grows with them, and a plot needs no more.
 _CURVE_POINTS = 50
 
 
 class Sweep(NamedTuple):
-    """The runs of one sweep folder, as the report needs them."""
+    """The runs of one sweep, as the report needs them."""
 
-    folder: str  # as the user named it
-    config: dict[str, Any]  # summary.json's config
+    folder: str  # as the user named it; "sweeps[i]" for the i-th source, a `SweepResult`
+    config: dict[str, Any]  # summary.json's config (`checkpoint.config_to_dict`)
     settings: list[dict[str, float]]  # G dicts {"learning_rate": ..., "discount": ...}
     scores: np.ndarray  # [G, S] one score per run
     curves: np.ndarray  # [G, S, I] each run's mean return per iteration
@@ -57,7 +59,7 @@ class Sweep(NamedTuple):
 class _Unit(NamedTuple):
     """One setting of one folder: what the comparison compares."""
 
-    label: str  # the setting in words, after its folder where there are several
+    label: str  # what sets it apart from the others, in words (`_labels`)
     folder: str  # as the user named it
     setting: dict[str, float]  # {"learning_rate": ..., "discount": ...}
     scores: np.ndarray  # [S]
@@ -92,7 +94,7 @@ def setting_label(setting: dict[str, float]) -> str:
 # --- Reading ------------------------------------------------------------------------------------
 
 
-def load_sweep(folder: str | pathlib.Path) -> Sweep:
+def load_sweep(folder: str | os.PathLike[str]) -> Sweep:
     """Reads a folder written by `jaxpg sweep --out`.
 
     Its files are read only where they are regular files, within `_MAX_SUMMARY_BYTES` (summary.json)
@@ -119,11 +121,44 @@ def load_sweep(folder: str | pathlib.Path) -> Sweep:
     summary = _read_summary(path, folder)
     settings = _read_grid(summary.get("grid"), path / "summary.json")
     arrays = _read_metrics(path, folder)
-    npz = path / "metrics.npz"
-    curves, held_out = arrays["mean_return"], arrays.get("eval_returns")
+    return _scored(os.fspath(folder), summary["config"], settings, arrays["mean_return"],
+                   arrays.get("eval_returns"), f"{path / 'metrics.npz'}: ")
+
+
+def from_result(result: SweepResult, name: str) -> Sweep:
+    """A `SweepResult`'s runs, as the report needs them.
+
+    Args:
+      result: the result of `jaxpg.sweep`, which carries its config.
+      name: what messages and the report call it, such as "sweeps[0]".
+
+    Returns:
+      `Sweep` with `[G, S]` scores and `[G, S, I]` curves.
+
+    Raises:
+      ValueError: naming `name`, for a result without its config, or with mean returns or
+        held-out returns that are empty, misshapen or not finite.
+    """
+    if result.config is None:
+        raise ValueError(f"{name}: a SweepResult without its config; give what jaxpg.sweep "
+                         f"returns")
+    curves = check_finite(f"{name}: mean_return",
+                          np.asarray(result.metrics.mean_return, np.float64))
+    held_out = (None if result.eval_returns is None else check_finite(
+        f"{name}: eval_returns", np.asarray(result.eval_returns, np.float64)))
+    settings = [{key: float(value) for key, value in setting.items()} for setting in result.grid]
+    return _scored(name, checkpoint.config_to_dict(result.config), settings, curves, held_out,
+                   f"{name}: ")
+
+
+def _scored(folder: str, config: dict[str, Any], settings: list[dict[str, float]],
+            curves: np.ndarray, held_out: np.ndarray | None, where: str) -> Sweep:
+    """The `Sweep` of finite `[G, S, I]` mean returns and optional `[G, S, N]` held-out returns,
+    scored; a ValueError starting with `where` names the array unless it is so shaped, G being
+    the number of `settings`, and not empty."""
     if curves.ndim != 3 or curves.shape[0] != len(settings) or not curves.size:
-        raise ValueError(f"{npz}: mean_return of shape {list(curves.shape)}, expected [G, S, I] "
-                         f"with G = {len(settings)} (summary.json's grid) and S, I > 0")
+        raise ValueError(f"{where}mean_return of shape {list(curves.shape)}, expected [G, S, I] "
+                         f"with G = {len(settings)} (the grid's settings) and S, I > 0")
     if held_out is None:
         window = min(SOLVED_WINDOW, curves.shape[-1])
         scores = curves[..., -window:].mean(axis=-1)
@@ -133,17 +168,17 @@ def load_sweep(folder: str | pathlib.Path) -> Sweep:
         score = (f"held-out evaluation return: each run's mean return over its "
                  f"{held_out.shape[-1]} evaluation episodes")
     else:
-        raise ValueError(f"{npz}: eval_returns of shape {list(held_out.shape)}, expected "
+        raise ValueError(f"{where}eval_returns of shape {list(held_out.shape)}, expected "
                          f"[G, S, N] with [G, S] = {list(curves.shape[:2])} and N > 0")
-    return Sweep(str(folder), summary["config"], settings, scores, curves, score)
+    return Sweep(folder, config, settings, scores, curves, score)
 
 
-def _missing(folder: str | pathlib.Path, name: str) -> ValueError:
+def _missing(folder: str | os.PathLike[str], name: str) -> ValueError:
     """The error for a sweep folder without its file `name`."""
     return ValueError(f"{folder}: no {name}; expected a folder written by jaxpg sweep --out")
 
 
-def _read_summary(path: pathlib.Path, folder: str | pathlib.Path) -> dict[str, Any]:
+def _read_summary(path: pathlib.Path, folder: str | os.PathLike[str]) -> dict[str, Any]:
     """`path`'s summary.json (`safe_read.read_json`).
 
     A ValueError names `folder` or the file unless it holds this version's format marker and a
@@ -193,7 +228,7 @@ def _json_value(value: object) -> str:
     return _JSON_TYPES.get(type(value)) or f"{value!r:.40}"
 
 
-def _read_metrics(path: pathlib.Path, folder: str | pathlib.Path) -> dict[str, np.ndarray]:
+def _read_metrics(path: pathlib.Path, folder: str | os.PathLike[str]) -> dict[str, np.ndarray]:
     """`path`'s metrics.npz: finite float64 mean_return and, where it holds them, eval_returns
     (`safe_read.read_arrays`); a ValueError naming `folder` or the file otherwise."""
     npz = path / "metrics.npz"
@@ -207,53 +242,70 @@ def _read_metrics(path: pathlib.Path, folder: str | pathlib.Path) -> dict[str, n
             for name, values in arrays.items()}
 
 
-def _check_distinct(folders: Sequence[str | pathlib.Path]) -> None:
-    """Raises a ValueError naming two of `folders` that are one folder (`X` and `X/`, links)."""
-    seen: dict[str, str | pathlib.Path] = {}
-    for folder in folders:
-        real = os.path.realpath(folder)
-        if real in seen:
-            raise ValueError(f"folders: a folder is given more than once ({seen[real]} and "
-                             f"{folder} are the same folder)")
-        seen[real] = folder
+def _load(sweeps: Sequence[Source]) -> list[Sweep]:
+    """Every source's `Sweep` (`load_sweep`, `from_result`), once each.
+
+    Raises:
+      ValueError: for no source, one given twice (a folder as `X` and `X/`, or through a link;
+        one `SweepResult`), or one that is neither a folder's path nor a `SweepResult`.
+    """
+    if not sweeps:
+        raise ValueError("sweeps: give at least one sweep folder or SweepResult")
+    seen: dict[int | str, str] = {}
+    loaded = []
+    for i, source in enumerate(sweeps):
+        key: int | str
+        if isinstance(source, SweepResult):
+            name, key = f"sweeps[{i}]", id(source)
+        elif isinstance(source, str | os.PathLike):
+            name, key = os.fspath(source), os.path.realpath(source)
+        else:
+            raise ValueError(f"sweeps[{i}]: must be a sweep folder or a SweepResult, got "
+                             f"{type(source).__name__}")
+        if key in seen:
+            raise ValueError(f"sweeps: a sweep is given more than once ({seen[key]} and {name} "
+                             f"are the same {'result' if isinstance(key, int) else 'folder'})")
+        seen[key] = name
+        loaded.append(from_result(source, name) if isinstance(source, SweepResult)
+                      else load_sweep(source))
+    return loaded
 
 
 def check_comparable(sweeps: Sequence[Sweep]) -> None:
-    """Raises a ValueError naming what differs unless the sweeps may be compared setting by setting.
+    """Raises a ValueError naming what differs unless the sweeps' settings may be compared.
 
-    Their configs must be equal but for the grid fields, their metrics of one length, and their
-    scores of one kind.
+    Their configs may differ in anything but the solved return (the target every setting is
+    measured against); their metrics must be of one length, and their scores of one kind.
 
     Args:
-      sweeps: one or more sweeps, as `load_sweep` reads them.
+      sweeps: one or more sweeps, as `load_sweep` or `from_result` read them.
     """
     first = sweeps[0]
     for other in sweeps[1:]:
-        keys = sorted((set(first.config) | set(other.config)) - set(HYPERPARAMETERS))
-        differ = [f"{key} ({first.config.get(key)} against {other.config.get(key)})"
-                  for key in keys if first.config.get(key) != other.config.get(key)]
-        if differ:
-            raise ValueError(f"folders: {first.folder} and {other.folder} differ in "
-                             f"{', '.join(differ)}; only learning rates, discounts and seeds may "
-                             f"differ")
+        pair = f"sweeps: {first.folder} and {other.folder}"
+        if other.config["solved_return"] != first.config["solved_return"]:
+            raise ValueError(f"{pair} differ in solved_return ({first.config['solved_return']} "
+                             f"against {other.config['solved_return']}); compare sweeps of one "
+                             f"target")
         if other.curves.shape[-1] != first.curves.shape[-1]:
-            raise ValueError(f"folders: {first.folder} and {other.folder} hold metrics of "
-                             f"different lengths ({first.curves.shape[-1]} against "
-                             f"{other.curves.shape[-1]} iterations); compare sweeps of one length")
+            raise ValueError(f"{pair} hold metrics of different lengths "
+                             f"({first.curves.shape[-1]} against {other.curves.shape[-1]} "
+                             f"iterations); compare sweeps of one length")
         if other.score != first.score:
-            raise ValueError(f"folders: {first.folder} and {other.folder} score their runs "
-                             f"differently ({first.score}; {other.score}); compare like with like")
+            raise ValueError(f"{pair} score their runs differently ({first.score}; "
+                             f"{other.score}); compare like with like")
 
 
 # --- Comparing ----------------------------------------------------------------------------------
 
 
-def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, reps: int = 2000,
+def compare(sweeps: Sequence[Source], confidence: float = 0.95, reps: int = 2000,
             seed: int = 0) -> dict[str, Any]:
-    """The comparison of every setting of the sweep folders with every other.
+    """The comparison of every setting of the sweeps with every other.
 
     Args:
-      folders: folders written by `jaxpg sweep --out`, of one config.
+      sweeps: `SweepResult`s and folders written by `jaxpg sweep --out` (or `save_sweep`), in
+        any mix; their configs may differ (`check_comparable`).
       confidence: the coverage of every interval, in (0, 1).
       reps: bootstrap resamples per interval.
       seed: seeds every bootstrap, so the report is reproducible.
@@ -263,22 +315,20 @@ def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, rep
       runs, and each aggregate of `_AGGREGATES` as {"estimate", "low", "high"}),
       "probability_of_improvement" (`[G, G]` "probability", "low", "high": row over column),
       "seeds_needed" (None for one setting), "iqm_curves" (`[G, I']` at I' <= `_CURVE_POINTS`
-      iterations), "performance_profiles" (`[G, P]`), and what was compared and how.
+      iterations), "performance_profiles" (`[G, P]`), and what was compared and how. A
+      `SweepResult` is called "sweeps[i]" where a folder is called by its path.
 
     Raises:
-      ValueError: for no folder or a repeated one, a folder that `load_sweep` refuses, folders
-        that may not be compared (`check_comparable`), a setting of fewer than 2 runs, or an
-        interval argument that `stats` refuses.
+      ValueError: for no sweep or a repeated one, a folder that `load_sweep` refuses or a result
+        that `from_result` refuses, sweeps that may not be compared (`check_comparable`), a
+        setting of fewer than 2 runs, or an interval argument that `stats` refuses.
     """
-    if not folders:
-        raise ValueError("folders: give at least one sweep folder")
-    _check_distinct(folders)
-    sweeps = [load_sweep(folder) for folder in folders]
-    check_comparable(sweeps)
-    units = _units(sweeps)
+    loaded = _load(sweeps)
+    check_comparable(loaded)
+    units = _units(loaded)
     scores = [unit.scores for unit in units]
     labels = [unit.label for unit in units]
-    solved_return = float(sweeps[0].config["solved_return"])
+    solved_return = float(loaded[0].config["solved_return"])
     interval = _Interval(confidence=confidence, reps=reps, seed=seed)
     gap = functools.partial(stats.optimality_gap, target=solved_return)
     statistics: dict[str, Callable[..., stats.Aggregate]] = dict(
@@ -292,8 +342,8 @@ def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, rep
     taus = np.linspace(min(map(np.min, scores)), max(map(np.max, scores)), stats.PROFILE_POINTS)
     return {
         "format": COMPARISON_FORMAT,
-        "folders": [sweep.folder for sweep in sweeps],
-        "score": sweeps[0].score,
+        "folders": [sweep.folder for sweep in loaded],
+        "score": loaded[0].score,
         "solved_return": solved_return,
         **interval,
         "settings": settings,
@@ -306,18 +356,61 @@ def compare(folders: Sequence[str | pathlib.Path], confidence: float = 0.95, rep
 
 
 def _units(sweeps: Sequence[Sweep]) -> list[_Unit]:
-    """Every setting of every sweep, labelled with its folder where there are several."""
+    """Every setting of every sweep, labelled by what sets it apart (`_labels`), after its sweep
+    where only the sweeps tell settings apart."""
+    runs = [(sweep, g) for sweep in sweeps for g in range(len(sweep.settings))]
+    labels = _labels([_values(sweep.config, sweep.settings[g]) for sweep, g in runs],
+                     [sweep.settings[g] for sweep, g in runs])
+    if len(set(labels)) < len(labels):
+        labels = [f"{sweep.folder}: {label}" for (sweep, _), label in zip(runs, labels)]
     units = []
-    for sweep in sweeps:
-        for setting, scores, curves in zip(sweep.settings, sweep.scores, sweep.curves):
-            label = setting_label(setting)
-            if len(sweeps) > 1:
-                label = f"{sweep.folder}: {label}"
-            if scores.size < 2:
-                raise ValueError(f"{sweep.folder}: {label} has {scores.size} run; a comparison "
-                                 f"needs at least 2 seeds per setting")
-            units.append(_Unit(label, sweep.folder, setting, scores, curves))
+    for (sweep, g), label in zip(runs, labels):
+        if sweep.scores[g].size < 2:
+            raise ValueError(f"{sweep.folder}: {label} has {sweep.scores[g].size} run; a "
+                             f"comparison needs at least 2 seeds per setting")
+        units.append(_Unit(label, sweep.folder, sweep.settings[g], sweep.scores[g],
+                           sweep.curves[g]))
     return units
+
+
+def _values(config: dict[str, Any], setting: dict[str, float]) -> dict[str, Any]:
+    """What one setting of a sweep trains with: its config's fields, the environment's physics
+    as fields of their own, and the grid's values in place of the config's."""
+    env = config.get("env")
+    if isinstance(env, str) and env in cartpole.PRESETS:
+        preset = cartpole.PRESETS[env]
+        env = {name: getattr(preset, name) for name in cartpole.CartPoleParams.__dataclass_fields__}
+    physics = env if isinstance(env, dict) else {"env": env}
+    rest = {name: value for name, value in config.items() if name != "env"}
+    return {**setting, **physics, **rest, **setting}  # (the grid's fields first)
+
+
+def _labels(values: Sequence[dict[str, Any]], settings: Sequence[dict[str, float]]) -> list[str]:
+    """Each setting named by the fields whose values differ among `values` (one dict per
+    setting, `_values`); where none differ, by its grid values (`setting_label` of `settings`)."""
+    names = list(dict.fromkeys(name for value in values for name in value))
+    differ = [name for name in names if any(v.get(name) != values[0].get(name) for v in values)]
+    if not differ:
+        return [setting_label(setting) for setting in settings]
+    return [", ".join(f"{_SHORT.get(name, name)}={_text(v.get(name))}" for name in differ)
+            for v in values]
+
+
+_SHORT = {"learning_rate": "lr"}  # names that labels shorten
+
+
+def _text(value: Any) -> str:
+    """A config value in a label: a number as "%g", a user's object by its class or function's
+    name, a list or dict by its items, anything else as `str` gives it."""
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, dict) and "object" in value:
+        return str(value["object"]).rpartition(".")[2]
+    if isinstance(value, list):
+        return "(" + ", ".join(map(_text, value)) + ")"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {_text(v)}" for k, v in value.items()) + "}"
+    return str(value)
 
 
 def _estimate(estimate: stats.Aggregate, interval: tuple[float, float]) -> dict[str, float]:
@@ -351,12 +444,12 @@ def _bands(bands: Sequence[stats.Band], x_name: str) -> dict[str, np.ndarray]:
 # --- Writing ------------------------------------------------------------------------------------
 
 
-def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confidence: float = 0.95,
+def write(sweeps: Sequence[Source], out: str | os.PathLike[str], confidence: float = 0.95,
           reps: int = 2000, seed: int = 0, within: str | None = None) -> dict[str, Any]:
-    """Compares the folders and writes `comparison.json` and the plots of `PLOT_FILES` into `out`.
+    """Compares the sweeps and writes `comparison.json` and the plots of `PLOT_FILES` into `out`.
 
     Args:
-      folders: folders written by `jaxpg sweep --out`, of one config.
+      sweeps: `SweepResult`s and folders written by `jaxpg sweep --out`, as `compare` takes them.
       out: the output folder (created if missing), replaced whole (`atomic_files.staged`).
       confidence: the coverage of every interval, in (0, 1).
       reps: bootstrap resamples per interval.
@@ -374,7 +467,7 @@ def write(folders: Sequence[str | pathlib.Path], out: str | pathlib.Path, confid
     if within is None:
         out = atomic_files.check_out_dir(out)
     try:
-        comparison = compare(folders, confidence, reps, seed)
+        comparison = compare(sweeps, confidence, reps, seed)
     except ValueError as error:
         if within is None:
             raise

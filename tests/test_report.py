@@ -1,6 +1,7 @@
 """The comparison report: `jaxpg sweep` writes it, `jaxpg compare` compares folders, bad folders
 are refused in one line."""
 
+import dataclasses
 import json
 import os
 import shutil
@@ -9,7 +10,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from jaxpg import cli, report, stats
+from jaxpg import TrainConfig, atomic_files, checkpoint, cli, report, save_sweep, stats, sweep
 
 SMALL = ["--iterations", "3", "--episodes", "3", "--max-steps", "20", "--quiet", "--no-cache"]
 REPORT_FILES = {report.COMPARISON_FILE, *report.PLOT_FILES}
@@ -178,8 +179,7 @@ def test_sweep_writes_its_report(sweeps):
     assert REPORT_FILES <= {p.name for p in folder.iterdir()}
     assert _strict_json(folder / "summary.json")["format"] == report.SWEEP_FORMAT
     comparison = _strict_json(folder / report.COMPARISON_FILE)
-    assert [s["label"] for s in comparison["settings"]] == [
-        "lr=0.01, discount=0.95", "lr=0.02, discount=0.95"]
+    assert [s["label"] for s in comparison["settings"]] == ["lr=0.01", "lr=0.02"]  # what differs
     assert [s["runs"] for s in comparison["settings"]] == [4, 4]
     for name in report.PLOT_FILES:
         assert (folder / name).read_bytes()[:8] == PNG_SIGNATURE
@@ -202,8 +202,7 @@ def test_scores_are_the_last_training_iterations_and_the_report_says_so(sweeps):
     matrix = comparison["probability_of_improvement"]
     assert matrix["probability"][1][0] == pytest.approx(
         stats.probability_of_improvement(scores[1], scores[0]))
-    assert comparison["seeds_needed"]["best"] in {
-        "lr=0.01, discount=0.95", "lr=0.02, discount=0.95"}
+    assert comparison["seeds_needed"]["best"] in {"lr=0.01", "lr=0.02"}
 
 
 def test_held_out_returns_are_the_scores_where_the_sweep_has_them(sweeps, tmp_path):
@@ -227,8 +226,8 @@ def test_compare_prints_a_table_and_the_matrix_and_writes_the_report(sweeps, tmp
     assert {p.name for p in out.iterdir()} == REPORT_FILES
     comparison = _strict_json(out / report.COMPARISON_FILE)
     labels = [s["label"] for s in comparison["settings"]]
-    assert labels[0] == f"{sweeps / 'a'}: lr=0.01, discount=0.95"
-    assert labels[3] == f"{sweeps / 'b'}: lr=0.05, discount=0.99"
+    assert labels[0] == "lr=0.01, discount=0.95"  # the learning rates and discounts differ
+    assert labels[3] == "lr=0.05, discount=0.99"
     assert np.shape(comparison["probability_of_improvement"]["low"]) == (4, 4)
     assert np.shape(comparison["performance_profiles"]["estimate"]) == (4, 101)
     assert comparison["reps"] == 500
@@ -243,10 +242,9 @@ def test_compare_prints_a_table_and_the_matrix_and_writes_the_report(sweeps, tmp
     ("empty", "empty; expected a folder written by jaxpg sweep"),
     ("unmarked", "written by another version of jaxpg (no format marker"),
     ("other format", "written by another version of jaxpg (format 'jaxpg-sweep-0'"),
-    ("other config",
-     "differ in max_steps (20 against 10); only learning rates, discounts and seeds may differ"),
+    ("other target", "differ in solved_return (195.0 against 100.0); compare sweeps of one"),
     ("one seed", "has 1 run; a comparison needs at least 2 seeds per setting"),
-    ("twice", "folders: a folder is given more than once"),
+    ("twice", "sweeps: a sweep is given more than once"),
     ("final separator", "are the same folder"),
     ("linked", "are the same folder"),
     ("other length", "hold metrics of different lengths (3 against 5 iterations)"),
@@ -261,8 +259,8 @@ def test_bad_folders_exit_2_with_one_line(sweeps, tmp_path, capsys, case, messag
         _edit_summary(copy, lambda summary: summary.pop("format"))
     elif case == "other format":
         _edit_summary(copy, lambda summary: summary.update(format="jaxpg-sweep-0"))
-    elif case == "other config":
-        _edit_summary(copy, lambda summary: summary["config"].update(max_steps=10))
+    elif case == "other target":
+        _edit_summary(copy, lambda summary: summary["config"].update(solved_return=100.0))
     elif case == "other length":  # a config of 3 iterations, metrics of 5
         _add_to_npz(copy, mean_return=np.ones((2, 4, 5)))
     elif case == "linked":
@@ -285,3 +283,92 @@ def test_bad_options_exit_2_with_one_line(sweeps, tmp_path, capsys, args, word):
     assert cli.run_command(["compare", str(sweeps / "a"), "--out", str(out), *args]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and word in lines[0]
+
+
+def test_folders_of_other_configs_are_compared_and_named_by_what_differs(sweeps, tmp_path):
+    folder = _copy(sweeps, tmp_path)
+    _edit_summary(folder, lambda summary: summary["config"].update(max_steps=10, loss="baseline"))
+    labels = [s["label"] for s in report.compare([sweeps / "a", folder], reps=50)["settings"]]
+    assert labels == [f"lr={lr}, max_steps={steps}, loss={loss}"
+                      for steps, loss in ((20, "reinforce"), (10, "baseline"))
+                      for lr in (0.01, 0.02)]
+
+
+def test_settings_alike_but_for_their_folders_are_named_after_them(sweeps, tmp_path):
+    folder = _copy(sweeps, tmp_path)
+    labels = [s["label"] for s in report.compare([sweeps / "a", folder], reps=50)["settings"]]
+    assert labels[0] == f"{sweeps / 'a'}: lr=0.01" and labels[3] == f"{folder}: lr=0.02"
+
+
+# --- SweepResults and save_sweep ----------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def result():
+    """A sweep of 3 seeds x 2 learning rates, with 4 held-out episodes per run."""
+    config = TrainConfig(iterations=3, episodes=3, max_steps=20)
+    return sweep(config, seeds=range(3), grid={"learning_rate": [0.01, 0.02]},
+                 show_progress=False, eval_episodes=4)
+
+
+def test_save_sweep_writes_the_folder_that_jaxpg_sweep_writes(sweeps, result, tmp_path):
+    out = tmp_path / "saved"
+    out.mkdir()
+    (out / "earlier.txt").write_text("an earlier result")
+    comparison = save_sweep(result, out)
+    assert {p.name for p in out.iterdir()} == {p.name for p in (sweeps / "a").iterdir()}
+    assert _strict_json(out / report.COMPARISON_FILE)["settings"] == json.loads(
+        json.dumps(atomic_files.to_json(comparison)))["settings"]  # (as JSON holds it, "out")
+    loaded = report.load_sweep(out)
+    np.testing.assert_array_equal(loaded.scores, result.eval_returns.mean(axis=-1))
+    assert loaded.config == checkpoint.config_to_dict(result.config)
+    assert checkpoint.load(out).policy_params.keys() == result.policy_params.keys()
+
+
+def test_a_result_and_its_folder_compare_alike(result, tmp_path):
+    save_sweep(result, tmp_path / "saved")
+    from_result, from_folder = (report.compare([source], reps=50)
+                                for source in (result, tmp_path / "saved"))
+    assert from_result["folders"] == ["sweeps[0]"]
+    assert from_result["settings"] == [{**setting, "folder": "sweeps[0]"}
+                                       for setting in from_folder["settings"]]
+
+
+def test_results_of_other_losses_are_named_by_their_loss(result):
+    other = result._replace(config=dataclasses.replace(result.config, loss="reward-to-go"))
+    labels = [s["label"] for s in report.compare([result, other], reps=50)["settings"]]
+    assert labels == ["lr=0.01, loss=reinforce", "lr=0.02, loss=reinforce",
+                      "lr=0.01, loss=reward-to-go", "lr=0.02, loss=reward-to-go"]
+
+
+def _with_mean_return(result, values):
+    return result._replace(metrics=result.metrics._replace(mean_return=values))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda r: [r, r], "sweeps: a sweep is given more than once (sweeps[0] and sweeps[1] are the "
+                       "same result)"),
+    (lambda r: [r, 3], "sweeps[1]: must be a sweep folder or a SweepResult, got int"),
+    (lambda r: [], "sweeps: give at least one sweep folder or SweepResult"),
+    (lambda r: [r._replace(config=None)], "sweeps[0]: a SweepResult without its config"),
+    (lambda r: [_with_mean_return(r, np.full((2, 3, 3), np.nan))],
+     "sweeps[0]: mean_return: must be finite, got NaN"),
+    (lambda r: [_with_mean_return(r, np.zeros((2, 0, 3)))],
+     "sweeps[0]: mean_return of shape [2, 0, 3], expected [G, S, I]"),
+    (lambda r: [r._replace(eval_returns=np.zeros((2, 2, 4)))],
+     "sweeps[0]: eval_returns of shape [2, 2, 4], expected [G, S, N] with [G, S] = [2, 3]"),
+    (lambda r: [r, _with_mean_return(r._replace(eval_returns=None), np.zeros((2, 3, 3)))],
+     "score their runs differently"),
+    (lambda r: [r, _with_mean_return(r, np.zeros((2, 3, 5)))],
+     "sweeps: sweeps[0] and sweeps[1] hold metrics of different lengths (3 against 5"),
+])
+def test_bad_results_are_one_line_errors(result, edit, message):
+    with pytest.raises(ValueError) as raised:
+        report.compare(edit(result), reps=50)
+    assert message in str(raised.value) and "\n" not in str(raised.value)
+
+
+def test_save_sweep_refuses_a_result_without_config_and_writes_nothing(result, tmp_path):
+    with pytest.raises(ValueError, match="result: a SweepResult without its config"):
+        save_sweep(result._replace(config=None), tmp_path / "out")
+    assert not (tmp_path / "out").exists()
