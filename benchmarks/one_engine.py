@@ -14,9 +14,10 @@ the process (`jaxpg.xla_options.configure_unstarted`). Also:
 - `--against DIR`: the default network at the book's settings, 1 seed (`train`) and 1024 seeds
   (`sweep`), each in a fresh process, alternating between this checkout and the one in DIR (an
   older commit: `git worktree add DIR COMMIT`); medians of `--rounds`.
-- `--start-up`: two fresh processes in turn train one seed of the MLP with `keep_programs` on
-  one directory: the first call's time, the training programs XLA compiled, and its other
-  (small) compiles and their seconds, in each.
+- `--start-up`: fresh processes train one seed of the MLP with its programs kept by
+  `keep_programs` or by JAX's persistent compilation cache: a first process that fills the store,
+  then `--rounds` that find them there, the two stores alternating; each process's first call,
+  the training programs XLA compiled, and its other (small) compiles and their seconds.
 
     python benchmarks/one_engine.py --seeds 64 --repeats 3
     python benchmarks/one_engine.py --seeds 1024 --repeats 1 --rows mlp,plain
@@ -113,7 +114,12 @@ compiles = []
 jax.monitoring.register_event_duration_secs_listener(
     lambda event, duration, fun_name="", **kw: compiles.append((fun_name, duration))
     if event == "/jax/core/compile/backend_compile_duration" else None)
-keep_programs(sys.argv[1])
+if sys.argv[4] == "kept":
+    keep_programs(sys.argv[1])
+else:  # JAX's own persistent compilation cache, as `jaxpg reproduce` uses it
+    jax.config.update("jax_compilation_cache_dir", sys.argv[1])
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 start = time.perf_counter()
 train(TrainConfig(policy=plain_jax.MLP((32, 32)), iterations=int(sys.argv[3])),
       show_progress=False)
@@ -124,13 +130,26 @@ print(json.dumps({"first_call_s": time.perf_counter() - start, "training_program
 """
 
 
-def start_up(iterations):
-    """Two processes in turn training one MLP seed with the same kept-program directory."""
+STORES = ("kept", "jax-cache")  # `keep_programs`, or JAX's persistent compilation cache
+
+
+def start_up(iterations, rounds):
+    """Processes training one MLP seed, for each store: a first that fills it, then `rounds`
+    that find their programs there, the stores alternating."""
     here = str(__import__("pathlib").Path(__file__).parent)
-    with tempfile.TemporaryDirectory() as directory:
-        return [json.loads(subprocess.run(
-            [sys.executable, "-c", START, directory, here, str(iterations)], capture_output=True,
-            text=True, check=True).stdout.splitlines()[-1]) for _ in range(2)]
+
+    def process(directory, store):
+        return json.loads(subprocess.run(
+            [sys.executable, "-c", START, directory, here, str(iterations), store],
+            capture_output=True, text=True, check=True).stdout.splitlines()[-1])
+
+    with tempfile.TemporaryDirectory() as kept, tempfile.TemporaryDirectory() as cache:
+        directories = dict(zip(STORES, (kept, cache)))
+        processes = {store: [process(directories[store], store)] for store in STORES}
+        for _ in range(rounds):
+            for store in STORES:
+                processes[store].append(process(directories[store], store))
+    return processes
 
 
 def main():
@@ -174,11 +193,15 @@ def main():
             print(f"default network, {seeds} seeds: this checkout {new:.3f} s, {args.against} "
                   f"{old:.3f} s (medians of {args.rounds}): {old / new:.2f}x")
     if args.start_up:
-        extra["start_up"] = start_up(args.iterations)
-        for i, process in enumerate(extra["start_up"], 1):
-            print(f"MLP, 1 seed, process {i}: first call {process['first_call_s']:.2f} s, "
-                  f"training programs compiled: {process['training_programs']}, other "
-                  f"compiles: {process['other_compiles']}, {process['compile_s']:.2f} s in XLA")
+        extra["start_up"] = start_up(args.iterations, args.rounds)
+        for store, processes in extra["start_up"].items():
+            for i, process in enumerate(processes):
+                print(f"MLP, 1 seed, {store}, process {i}: first call "
+                      f"{process['first_call_s']:.2f} s, training programs compiled: "
+                      f"{process['training_programs']}, other compiles: "
+                      f"{process['other_compiles']}, {process['compile_s']:.2f} s in XLA")
+            print(f"{store}: median first call of the later processes "
+                  f"{statistics.median(p['first_call_s'] for p in processes[1:]):.2f} s")
     common.write_results("one_engine", args, rows, **extra)
 
 
