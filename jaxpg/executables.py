@@ -15,23 +15,27 @@ of jax and jaxlib, the backend, JAX's configuration and `XLA_FLAGS`.
 Nothing is kept until `keep_programs` names a directory, and nothing that JAX's persistent cache
 supplied: an executable loaded from a file loses some of its kernels when it is serialised again,
 so only programs that XLA compiled in this process are kept, and none while JAX's cache is on. A
-file that cannot be loaded is compiled again and replaced; a directory that cannot be written
-means only that nothing is kept.
+file that cannot be loaded is compiled again and replaced; a directory that cannot be created or
+written (a cache home that is a file, or read-only) means only that nothing is kept, with one
+warning.
 
 A kept program is read back without running any of the file's code: nothing is unpickled
 (`jax.experimental.serialize_executable` pickles, and unpickling runs whatever the file asks).
 A file holds
 
-    jaxpg-program 1\n     the format's marker and version
-    header\n              JSON: the sha256 of the program's key and of the payload, which of
-                          the arguments' leaves the executable takes (XLA drops unused ones), and
-                          the outputs: their tree (tuples, lists, dicts, None and named tuples of
-                          modules already imported) and each one's shape and dtype
+    jaxpg-program 2\n     the format's marker and version
+    digest\n              the sha256, in hex, of every byte that follows it: header and payload
+    header\n              JSON: the sha256 of the program's key, which of the arguments' leaves
+                          the executable takes (XLA drops unused ones), and the outputs: their
+                          tree (tuples, lists, dicts, None and named tuples of modules already
+                          imported) and each one's shape and dtype
     payload               XLA's executable, as XLA serialises it (`Client.serialize_executable`)
 
-A file of another format, another key (another program's) or another digest is warned about
-once, compiled again and replaced. A loaded program (`_Kept`) runs XLA's executable on the call's
-arrays and builds the outputs' tree around its results.
+Every byte that decides what runs is under the digest: a header edited (its arguments or outputs)
+is as damaged as a payload. A file of another format, another key (another program's) or another
+digest, or something other than a file in its place, is warned about once, compiled again and
+replaced: the results are those of a process that found no file. A loaded program (`_Kept`) runs
+XLA's executable on the call's arrays and builds the outputs' tree around its results.
 
 The executable is machine code: whoever can write the directory can make the user run code. The
 directories are created for the user alone (0700), and one that is another user's, or that others
@@ -45,7 +49,9 @@ import json
 import logging
 import os
 import pathlib
+import shutil
 import sys
+import tempfile
 import threading
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any, cast
@@ -80,11 +86,16 @@ _directory: pathlib.Path | None = None  # where programs are kept; None: nowhere
 def cache_home() -> pathlib.Path:
     """The user's cache directory: $XDG_CACHE_HOME, or ~/.cache.
 
-    ~/.cache where $XDG_CACHE_HOME is unset, empty or relative (the XDG base directory
-    specification says to ignore such values).
+    ~/.cache where $XDG_CACHE_HOME is unset, empty or relative: the XDG base directory
+    specification says to ignore such values. Such a value is removed from the environment too,
+    so that the libraries that read it later (matplotlib, for its cache) ignore it as well, and
+    nothing is created in the working directory.
     """
     value = os.environ.get("XDG_CACHE_HOME", "")
-    return pathlib.Path(value) if os.path.isabs(value) else pathlib.Path.home() / ".cache"
+    if os.path.isabs(value):
+        return pathlib.Path(value)
+    os.environ.pop("XDG_CACHE_HOME", None)
+    return pathlib.Path.home() / ".cache"
 
 
 def keep_programs(directory: atomic_files.StrPath | None = None) -> None:
@@ -92,18 +103,19 @@ def keep_programs(directory: atomic_files.StrPath | None = None) -> None:
 
     The next process loads them rather than compiling; the `jaxpg` command does this for its own
     training. A directory that is another user's, or that others can write, keeps none (with a
-    warning): its programs are machine code that the process would run. Temporary files that
-    killed processes left there are removed. Programs of a user's own policy, loss or optimizer
-    are not kept: their code can change under the same name.
+    warning): its programs are machine code that the process would run. So does one that cannot
+    be created or written (one warning; training goes on without kept programs). Temporary files
+    that killed processes left there are removed. Programs of a user's own policy, loss or
+    optimizer are kept under the digest of their lowered code (`Stored`'s `by_code`).
 
     Args:
       directory: where; by default `cache_home()/jaxpg/programs`, where the command keeps its.
-        Created for the user alone (0700) when a program is first kept.
+        Created now, with its missing parents, for the user alone (0700).
     """
     directory = cache_home() / "jaxpg" / "programs" if directory is None else directory
     global _directory
     directory = pathlib.Path(directory)
-    problem = _unsafe(directory)
+    problem = _unsafe(directory) or _unwritable(directory)
     if problem:
         logger.warning("keeping no compiled programs in %s: %s", directory, problem)
         _directory = None
@@ -119,11 +131,24 @@ def _unsafe(directory: pathlib.Path) -> str | None:
     try:
         status = directory.stat()
     except FileNotFoundError:
-        return None  # created for the user alone when a program is kept
+        return None  # created for the user alone (`_unwritable`)
+    except OSError as error:  # a parent is a file, or cannot be searched
+        return f"it cannot be used ({error.strerror})"
     if status.st_uid != os.getuid():
         return "it belongs to another user"
     if status.st_mode & 0o022:
         return "others can write it"
+    return None
+
+
+def _unwritable(directory: pathlib.Path) -> str | None:
+    """Why no file can be written in `directory`, created now where missing; None where one can."""
+    try:
+        atomic_files.private_directory(directory)
+        with tempfile.TemporaryFile(dir=directory):
+            pass  # permissions alone do not tell (a read-only file system, root)
+    except OSError as error:
+        return f"it cannot be written ({error.strerror})"
     return None
 
 
@@ -373,6 +398,8 @@ class Stored:
         try:
             data = _write(compiled, key)
             atomic_files.private_directory(path.parent)
+            if path.is_dir() and not path.is_symlink():  # found in the file's place: replaced too
+                shutil.rmtree(path)
             atomic_files.atomic_write(path, data)
             _unusable.discard(path)
         except Exception as error:  # the program is compiled all the same
@@ -393,7 +420,7 @@ def _device(signature: Signature) -> jax.Device | None:
 
 # --- Files of kept programs ----------------------------------------------------------------------
 
-_FORMAT = b"jaxpg-program 1\n"
+_FORMAT = b"jaxpg-program 2\n"
 _unusable: set[pathlib.Path] = set()  # the files this process found it could not load
 
 
@@ -413,10 +440,15 @@ def _write(compiled: jax.stages.Compiled, key: str) -> bytes:
         raise ValueError("its executable takes other parameters than the arguments")
     outputs, tree = jax.tree.flatten(compiled.out_info)
     payload = executable.client.serialize_executable(executable)
-    header = {"key": key, "sha256": hashlib.sha256(payload).hexdigest(), "arguments": taken,
-              "outputs": _describe(tree),
+    header = {"key": key, "arguments": taken, "outputs": _describe(tree),
               "shapes": [[list(leaf.shape), str(leaf.dtype)] for leaf in outputs]}
-    return _FORMAT + json.dumps(header).encode() + b"\n" + payload
+    signed = json.dumps(header).encode() + b"\n" + payload
+    return _FORMAT + _digest(signed) + b"\n" + signed
+
+
+def _digest(signed: bytes) -> bytes:
+    """The sha256 of a file's header and payload, `signed`, in hex."""
+    return hashlib.sha256(signed).hexdigest().encode()
 
 
 def _read(data: bytes, key: str, device: jax.Device) -> "_Kept":
@@ -428,17 +460,18 @@ def _read(data: bytes, key: str, device: jax.Device) -> "_Kept":
       device: where the program runs.
 
     Raises:
-      ValueError: the file is not one of a program, of this one, or its payload does not match
-        its digest; the message says which.
+      ValueError: the file is not one of a program of this format, its header and payload do
+        not match their digest, or it holds another program; the message says which.
     """
     if not data.startswith(_FORMAT):
-        raise ValueError("not a jaxpg program file")
-    header, _, payload = data[len(_FORMAT):].partition(b"\n")
+        raise ValueError(f"not a jaxpg program file of format {_FORMAT.split()[-1].decode()}")
+    digest, _, signed = data[len(_FORMAT):].partition(b"\n")
+    if digest != _digest(signed):
+        raise ValueError("its contents do not match their digest")
+    header, _, payload = signed.partition(b"\n")
     header = json.loads(header)
     if header["key"] != key:
         raise ValueError("it holds another program")
-    if header["sha256"] != hashlib.sha256(payload).hexdigest():
-        raise ValueError("its contents do not match their digest")
     executable = device.client.deserialize_executable(payload, xla_client.DeviceList((device,)))
     shapes = [jax.ShapeDtypeStruct(tuple(shape), jnp.dtype(dtype))
               for shape, dtype in header["shapes"]]

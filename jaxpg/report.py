@@ -22,7 +22,7 @@ import numpy as np
 
 from jaxpg import atomic_files, cartpole, checkpoint, plots, safe_read, stats
 from jaxpg.sweeps import SOLVED_WINDOW, SweepResult
-from jaxpg.validation import check_finite
+from jaxpg.validation import check_finite, check_int
 
 # summary.json's "format": the folders this version writes and reads.
 SWEEP_FORMAT = "jaxpg-sweep-1"
@@ -299,6 +299,11 @@ def check_comparable(sweeps: Sequence[Sweep]) -> None:
 # --- Comparing ----------------------------------------------------------------------------------
 
 
+# Bootstrap resamples per interval, at most: a comparison's time grows in proportion to them (its
+# memory does not: `stats` draws them in chunks of `stats._CHUNK_SCORES` scores).
+MAX_REPS = 100_000
+
+
 def compare(sweeps: Sequence[Source], confidence: float = 0.95, reps: int = 2000,
             seed: int = 0) -> dict[str, Any]:
     """The comparison of every setting of the sweeps with every other.
@@ -307,7 +312,7 @@ def compare(sweeps: Sequence[Source], confidence: float = 0.95, reps: int = 2000
       sweeps: `SweepResult`s and folders written by `jaxpg sweep --out` (or `save_sweep`), in
         any mix; their configs may differ (`check_comparable`).
       confidence: the coverage of every interval, in (0, 1).
-      reps: bootstrap resamples per interval.
+      reps: bootstrap resamples per interval, in [1, `MAX_REPS`].
       seed: seeds every bootstrap, so the report is reproducible.
 
     Returns:
@@ -321,8 +326,10 @@ def compare(sweeps: Sequence[Source], confidence: float = 0.95, reps: int = 2000
     Raises:
       ValueError: for no sweep or a repeated one, a folder that `load_sweep` refuses or a result
         that `from_result` refuses, sweeps that may not be compared (`check_comparable`), a
-        setting of fewer than 2 runs, or an interval argument that `stats` refuses.
+        setting of fewer than 2 runs, a `reps` out of range, or an interval argument that `stats`
+        refuses.
     """
+    reps = check_int("reps", reps, 1, MAX_REPS + 1)  # before any folder is read
     loaded = _load(sweeps)
     check_comparable(loaded)
     units = _units(loaded)

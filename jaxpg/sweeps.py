@@ -232,8 +232,9 @@ def check_arguments(
     seeds: Seeds,
     grid: Grid = None,
     memory_budget: int | None = None,
+    eval_episodes: int = 0,
 ) -> tuple[np.ndarray, list[dict[str, float]]]:
-    """Checks the arguments of `sweep`, and the memory that its runs need (`budget.check`).
+    """Checks the arguments of `sweep`, and the memory that its runs need (`budget`).
 
     Everything is checked before anything is traced or allocated.
 
@@ -242,22 +243,37 @@ def check_arguments(
       seeds: S seeds (`check_seeds`).
       grid: the grid of settings (`expand_grid`).
       memory_budget: optional bytes of memory one device may use (`budget.check_memory_budget`).
+      eval_episodes: N, held-out episodes each run's final policy plays, in [0, 2**20].
 
     Returns:
       (the `[S]` seeds as `check_seeds` gives them, the G settings of `expand_grid`).
 
     Raises:
-      ValueError: one line naming the argument, for any of them out of range, or runs that need
-        more memory than the machine has.
+      ValueError: one line naming the argument, for any of them out of range, or one that needs
+        more memory than the machine has, with the estimate: "memory" where one run does not
+        fit (`budget.check`), "seeds" where the S x G runs do not, "eval_episodes" where their
+        held-out episodes do not (`budget.evaluation_bytes`).
     """
     if not isinstance(config, train_config.TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     num_seeds = count_seeds(seeds)
     settings = expand_grid(config, grid)
     budget.check_memory_budget(memory_budget)
+    eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
     runs = num_seeds * len(settings)
-    budget.check(config, runs, "1 run" if runs == 1 else
-                 f"{num_seeds} seeds x {len(settings)} settings")
+    budget.check(config)
+    try:
+        budget.check(config, runs, f"{num_seeds} seeds x {len(settings)} settings")
+    except ValueError as error:  # one run fits: the runs' count is what does not
+        raise ValueError(f"seeds: {str(error).removeprefix('memory: ')}") from None
+    # A block of runs per core plays at once (`schedule.train_blocks`); the returns of every
+    # episode of every run are kept, sampled and greedy: two floats of 4 bytes.
+    at_once = min(runs, schedule.CPU_BLOCK * schedule.usable_cores())
+    returns = runs * eval_episodes * 8
+    budget.check_fits(
+        budget.evaluation_bytes(eval_episodes, config.max_steps, at_once) + returns,
+        "eval_episodes", f"playing {eval_episodes} held-out episodes of at most "
+        f"{config.max_steps} steps for each of {runs} runs, {at_once} at once")
     return check_seeds(seeds), settings
 
 

@@ -2,10 +2,15 @@
 process without tracing or compiling."""
 
 import functools
+import json
 import logging
+import os
 import pathlib
 import pickle
 import stat
+import subprocess
+import sys
+import tempfile
 
 import chex
 import jax
@@ -194,15 +199,62 @@ def test_a_file_of_another_program_is_warned_about_once_compiled_again_and_repla
     swapped = {init: iterate.read_bytes(), iterate: init.read_bytes()}
     for path, data in swapped.items():
         path.write_bytes(data)
+    assert _replaced_after_one_warning_each(store, [12], expected, caplog, monkeypatch) == [
+        "it holds another program"] * 2
+
+
+def _replaced_after_one_warning_each(store, seeds, expected, caplog, monkeypatch):
+    """Trains `seeds` as a new process twice: the first warns about each file of `store` once and
+    trains `expected`; the second loads the files it replaced, compiling nothing.
+
+    Returns:
+      Each warning's reason, in the order of the files' names.
+    """
+    files = sorted(store.iterdir())
     _new_process()
     with caplog.at_level(logging.WARNING, logger=executables.__name__):
-        chex.assert_trees_all_equal(_train([12]), expected)
-    assert sorted(r.getMessage().split(" (")[0] for r in caplog.records) == [
-        f"could not load {init}", f"could not load {iterate}"]
-    assert all("another program" in r.getMessage() for r in caplog.records)
+        chex.assert_trees_all_equal(_train(seeds), expected)
+    messages = sorted(r.getMessage() for r in caplog.records)
+    assert [m.split(" (")[0] for m in messages] == [f"could not load {p}" for p in files]
     _new_process()  # replaced: loaded now, not compiled
     monkeypatch.setattr(jax.stages.Lowered, "compile", _not_again)
-    chex.assert_trees_all_equal(_train([12]), expected)
+    chex.assert_trees_all_equal(_train(seeds), expected)
+    monkeypatch.undo()
+    return [m.split(" (", 1)[1].rsplit(")", 1)[0] for m in messages]
+
+
+def _swapped(indices):
+    """Swaps the first two of `indices`; of one leaf (init's keys), takes the next leaf instead."""
+    indices[:2] = indices[1::-1] if len(indices) >= 2 else [indices[0] + 1]
+
+
+@pytest.mark.parametrize("edit", [
+    lambda header: header["arguments"].pop(),  # once: "Execution supplied 2 arguments"
+    lambda header: _swapped(header["arguments"]),  # once: another policy trained, silently
+    lambda header: header.update(outputs={"tuple": [header["outputs"]]}),
+], ids=["an-argument-dropped", "arguments-swapped", "outputs-nested"])
+def test_an_edited_header_is_warned_about_once_compiled_again_and_replaced(
+        store, caplog, monkeypatch, edit):
+    """The header decides which arrays the executable runs on and what its outputs are: it is
+    under the file's digest, as the payload is."""
+    expected = _train([15])
+    for path in store.iterdir():
+        marker, digest, header, payload = path.read_bytes().split(b"\n", 3)
+        described = json.loads(header)
+        edit(described)
+        path.write_bytes(b"\n".join([marker, digest, json.dumps(described).encode(), payload]))
+    assert _replaced_after_one_warning_each(store, [15], expected, caplog, monkeypatch) == [
+        "its contents do not match their digest"] * 2
+
+
+def test_a_folder_in_a_files_place_is_warned_about_once_and_replaced(store, caplog, monkeypatch):
+    expected = _train([16])
+    for path in store.iterdir():
+        path.unlink()
+        (path / "inside").mkdir(parents=True)
+    reasons = _replaced_after_one_warning_each(store, [16], expected, caplog, monkeypatch)
+    assert len(reasons) == 2 and all("Is a directory" in reason for reason in reasons)
+    assert all(path.is_file() for path in store.iterdir())
 
 
 def test_cache_directories_are_created_for_the_user_alone(tmp_path):
@@ -238,3 +290,59 @@ def test_temporary_files_that_killed_processes_left_are_removed(tmp_path):
     executables.keep_programs(tmp_path)
     executables.stop_keeping_programs()
     assert list(tmp_path.iterdir()) == []
+
+
+def _train_command(tmp_path, cache_home):
+    """Runs `jaxpg train` in a new process with XDG_CACHE_HOME=`cache_home` and HOME in
+    `tmp_path`, in an empty working directory, which it must leave empty.
+
+    Returns:
+      The lines of its standard error that are not matplotlib's (it warns about its own cache).
+    """
+    work, home = tmp_path / "work", tmp_path / "home"
+    work.mkdir()
+    home.mkdir()
+    env = {**os.environ, "XDG_CACHE_HOME": cache_home, "HOME": str(home)}
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxpg.cli", "train", "--iterations", "2", "--episodes", "2",
+         "--max-steps", "10", "--quiet", "--out", str(tmp_path / "out")],
+        cwd=work, env=env, capture_output=True, text=True, check=True)
+    assert list(work.iterdir()) == []
+    assert (tmp_path / "out" / "policy.msgpack").is_file()
+    return [line for line in done.stderr.splitlines() if "matplotlib" not in line.lower()]
+
+
+def _read_only_directory(tmp_path):
+    """A directory in which this process cannot create a file: one made read-only, or /sys where
+    permissions do not bind the process (root)."""
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    folder.chmod(0o555)
+    for candidate in (folder, pathlib.Path("/sys")):
+        try:
+            with tempfile.TemporaryFile(dir=candidate):
+                pass
+        except OSError:
+            return candidate
+    pytest.skip("every directory can be written here")
+
+
+@pytest.mark.parametrize("kind", ["a file", "read-only"])
+def test_a_cache_home_that_cannot_be_used_means_training_without_kept_programs(tmp_path, kind):
+    if kind == "a file":
+        cache = tmp_path / "cache"
+        cache.write_text("not a folder")
+    else:
+        cache = _read_only_directory(tmp_path)
+    [warning] = _train_command(tmp_path, str(cache))
+    assert warning.startswith(
+        f"keeping no compiled programs in {cache / 'jaxpg' / 'programs'}: it cannot be ")
+
+
+def test_a_relative_cache_home_is_ignored_and_nothing_is_created_in_the_working_directory(
+        tmp_path):
+    """As the XDG base directory specification says: ~/.cache is used, matplotlib's cache too."""
+    assert _train_command(tmp_path, "relative/cache") == []
+    kept = tmp_path / "home" / ".cache" / "jaxpg" / "programs"
+    assert sorted(p.name.split("-")[0] for p in kept.iterdir()) == ["init", "iterate_alone"]
+    assert (tmp_path / "home" / ".cache" / "matplotlib").is_dir()

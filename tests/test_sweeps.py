@@ -14,7 +14,7 @@ from conftest import (
     xla_compiles,
 )
 
-from jaxpg import TrainConfig, TrainResult, cartpole, programs, schedule, sweeps, train
+from jaxpg import TrainConfig, TrainResult, budget, cartpole, programs, schedule, sweeps, train
 from jaxpg.sweeps import chunk_size, device_bytes, fitting_chunk_size, summarize, sweep
 
 
@@ -143,7 +143,7 @@ def test_summary_statistics():
     (dict(seeds=[-1]), "seeds"),
     (dict(seeds=5), "seeds: must be a non-empty sequence"),
     (dict(seeds=range(2**33)), "seeds: must be a non-empty sequence"),  # checked by its bounds
-    (dict(seeds=range(2**32)), "memory: training 4294967296 seeds"),  # before making its array
+    (dict(seeds=range(2**32)), "seeds: training 4294967296 seeds"),  # before making its array
     (dict(grid={"learning_rate": ["0.01"]}), "learning_rate: must be a number"),
     (dict(grid={"lr": [0.1]}), "grid"),
     (dict(grid={"discount": [0.0]}), "discount"),
@@ -258,3 +258,23 @@ def test_held_out_episodes_draw_the_training_ranges_unless_asked_for_the_base_ph
     with pytest.raises(ValueError, match="eval_physics"):
         sweep(config, seeds=range(2), eval_episodes=2, eval_physics="default",
               show_progress=False)
+
+
+def test_seeds_and_held_out_episodes_beyond_memory_are_refused_in_one_line_naming_them(
+        monkeypatch):
+    monkeypatch.setattr(budget, "machine_memory", lambda: 2**30)  # 1 GiB, of which 80% usable
+    config = TrainConfig(iterations=10, episodes=2, max_steps=20)
+    seeds, settings = sweeps.check_arguments(config, range(4), eval_episodes=100)  # fits
+    assert seeds.tolist() == [0, 1, 2, 3] and len(settings) == 1
+    with pytest.raises(ValueError, match=r"^seeds: training 10000000 seeds x 1 settings for 10 "
+                                         r"iterations .* needs about [\d.]+ GiB; this machine "
+                                         r"has 1 GiB, of which jaxpg may use 80%$"):
+        sweeps.check_arguments(config, range(10**7))
+    # 4 runs at once x 1048575 episodes x 20 steps x 10 floats x 4 bytes = 3355440000, and the
+    # returns kept, 4 x 1048575 x 8 = 33554400: 3388994400 bytes = 3.156 GiB.
+    with pytest.raises(ValueError, match=r"^eval_episodes: playing 1048575 held-out episodes of "
+                                         r"at most 20 steps for each of 4 runs, 4 at once needs "
+                                         r"about 3\.156 GiB; this machine has 1 GiB"):
+        sweeps.check_arguments(config, range(4), eval_episodes=2**20 - 1)
+    with pytest.raises(ValueError, match=r"^memory: training 1 run "):  # one run is too much
+        sweeps.check_arguments(dataclasses.replace(config, episodes=10**6), range(4))
