@@ -15,6 +15,9 @@ from flax import struct
 from jaxpg.types import ArrayLike, Observation, PRNGKey
 from jaxpg.validation import check_choice, check_finite, check_representable, in_float64
 
+NAME = "CartPole-v1"
+OBS_SIZE = 4  # x, x_dot, theta, theta_dot
+NUM_ACTIONS = 2  # push left, push right
 INTEGRATORS = ("euler", "semi-implicit")
 
 # The values that the pieces of `step` compute with, all of one kind: JAX arrays inside `step`,

@@ -54,7 +54,16 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from jaxpg import atomic_files, cartpole, iteration, losses, policies, safe_read, train_config
+from jaxpg import (
+    atomic_files,
+    cartpole,
+    envs,
+    iteration,
+    losses,
+    policies,
+    safe_read,
+    train_config,
+)
 from jaxpg.types import Params
 from jaxpg.validation import check_int, check_number
 
@@ -210,10 +219,13 @@ def config_to_dict(config: train_config.TrainConfig) -> dict[str, Any]:
             value = {name: list(bounds) for name, bounds in value}
         elif field.name in _OBJECTS:
             value = _describe(value)
-        elif isinstance(value, cartpole.CartPoleParams):
+        elif field.name == "env" and not isinstance(value, str):
+            # CartPole's physics by their fields alone, another environment's with its id.
+            module = envs.module_of(value)
             value = {
-                name: _scalar(getattr(value, name), f"config.env.{name}")
-                for name in cartpole.CartPoleParams.__dataclass_fields__
+                **({} if module is cartpole else {"id": module.NAME}),
+                **{name: _scalar(getattr(value, name), f"config.env.{name}")
+                   for name in type(value).__dataclass_fields__},
             }
         else:
             value = _scalar(value, f"config.{field.name}")
@@ -295,7 +307,9 @@ def config_from_dict(
     if unknown:
         raise ValueError(f"unknown config field(s) {', '.join(sorted(unknown))}")
     if isinstance(fields.get("env"), dict):
-        fields["env"] = cartpole.CartPoleParams(**fields["env"])
+        env = dict(fields["env"])
+        preset = envs.resolve(env.pop("id", "CartPole-v1"))
+        fields["env"] = type(preset)(**env)
     if "hidden" in fields:
         fields["hidden"] = tuple(fields["hidden"])
     return train_config.TrainConfig(**fields)
@@ -310,7 +324,7 @@ def _check_params_match(
     """
     shapes = jax.tree.map(np.shape, serialization.to_state_dict(policy_params))
     want = jax.tree.map(lambda leaf: (*lead, *leaf.shape), jax.eval_shape(
-        lambda key: policies.init_network(key, config.network),
+        lambda key: policies.init_network(key, config.network, config.env_module.OBS_SIZE),
         jax.ShapeDtypeStruct((2,), np.uint32)))
     if shapes != want:
         raise ValueError(
@@ -485,7 +499,7 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
         raise ValueError(f"run: expected g in [0, {grid_shape[0]}) and s in "
                          f"[0, {grid_shape[1]}), got {g},{s}")
     setting = loaded.grid[g]
-    physics = {name: setting[name] for name in train_config.PHYSICS if name in setting}
+    physics = {name: setting[name] for name in loaded.config.physics if name in setting}
     hyperparams: dict[str, Any] = {
         name: setting[name] for name in train_config.HYPERPARAMETERS if name in setting}
     config = dataclasses.replace(

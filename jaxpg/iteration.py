@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxpg import cartpole, hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
+from jaxpg import hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
 from jaxpg.train_config import (
     Hyperparams,
     Ranges,
@@ -132,10 +132,10 @@ def init_run(
     Returns:
       (params, opt_state) of the run.
     """
-    network = config.network
+    network, obs_size = config.network, config.env_module.OBS_SIZE
     key_init = jax.random.split(key)[1]
     if policy_params is None:
-        policy_params = policies.init_network(key_init, network)
+        policy_params = policies.init_network(key_init, network, obs_size)
     optimizer = make_optimizer(config, hyperparams.learning_rate)
     if config.hand_gradient:
         flat = policies.flatten(policy_params, cast(policies.PolicyNetwork, network))
@@ -143,7 +143,8 @@ def init_run(
     params = {"policy": policy_params}
     critic = losses.critic(config.loss)
     if critic is not None:
-        params["critic"] = (policies.init_network(jax.random.fold_in(key_init, 1), critic)
+        params["critic"] = (policies.init_network(jax.random.fold_in(key_init, 1), critic,
+                                                  obs_size)
                             if critic_params is None else critic_params)
     return params, {name: optimizer.init(leaves) for name, leaves in params.items()}
 
@@ -243,8 +244,7 @@ def iterate(config: TrainConfig, train_state: TrainState,
     return TrainState(new_params, opt_state, key), metrics
 
 
-def _physics(config: TrainConfig, hyperparams: Hyperparams,
-             alone: bool) -> cartpole.CartPoleParams:
+def _physics(config: TrainConfig, hyperparams: Hyperparams, alone: bool) -> Any:
     """Each run's physics: `[R]` leaves, scalars for a run alone."""
     del config
     return _without_run_axis(hyperparams.env) if alone else hyperparams.env
@@ -288,7 +288,7 @@ def evaluate_runs(config: TrainConfig, train_state: TrainState, hyperparams: Hyp
     alone = is_run_alone(train_state)
     params = _without_run_axis(train_state.params) if alone else train_state.params
     keys = jax.vmap(lambda key: jax.random.fold_in(key, EVALUATION))(train_state.key)
-    policy = _policy(config, params, alone)
+    policy = cast(policies.NetworkPolicy, _policy(config, params, alone))
     env_params = _physics(config, hyperparams, alone)
     if config.randomize and randomized:
         drawn = -(-episodes // rollout.LANES) * rollout.LANES if alone else episodes
@@ -302,12 +302,10 @@ def evaluate_runs(config: TrainConfig, train_state: TrainState, hyperparams: Hyp
                                  config.max_steps, lanes=rollout.LANES if alone else 1).returns
         return played[None] if alone else jnp.moveaxis(played, -1, 0)
 
-    return Evaluation(returns(policy),
-                      returns(lambda obs, u: policy(obs, jnp.full_like(u, 0.5))))
+    return Evaluation(returns(policy), returns(policy.replace(greedy=True)))
 
 
-def _randomized(ranges: Ranges, env_params: cartpole.CartPoleParams, key: PRNGKey,
-                episodes: int) -> cartpole.CartPoleParams:
+def _randomized(ranges: Ranges, env_params: Any, key: PRNGKey, episodes: int) -> Any:
     """`env_params` with each field of `ranges` drawn per episode, uniformly in [low, high).
 
     The drawn fields have leaves `[episodes]` for a key `[2]`, or `[episodes, R]` for R keys
@@ -327,13 +325,14 @@ def _without_run_axis(tree: Any) -> Any:
 def _policy(config: TrainConfig, params: Params, alone: bool) -> Policy:
     """The rollout's policy of the runs' parameters.
 
-    It maps `(obs [E, R, 4], u [E, R])` to actions `[E, R]`, without the run axes for a run alone.
+    It maps `(obs [E, R, K], u [E, R])` to actions `[E, R]`, without the run axes for a run alone.
     """
     network = config.network
     if config.hand_gradient:  # parameters taken apart where the rollout's kernels use them
         return policies.network_policy(
             network, policies.unflatten(params, cast(policies.PolicyNetwork, network)))
-    return policies.network_policy(network, params["policy"], runs=not alone)
+    return policies.network_policy(network, params["policy"], runs=not alone,
+                                   num_actions=config.num_actions)
 
 
 def _learn_by_hand(
@@ -413,7 +412,8 @@ def learn_run(
       last three averaged over the updates.
     """
     loss_fn = losses.resolve(config.loss)
-    apply_fn = _once_per_input(functools.partial(policies.logits, config.network))
+    apply_fn = _once_per_input(functools.partial(
+        policies.distribution, config.network, num_actions=config.num_actions))
     critic = losses.critic(config.loss)
     batch = jax.lax.stop_gradient(batch._replace(
         log_prob=losses.log_prob(apply_fn(params["policy"], batch.obs), batch.action),
@@ -542,14 +542,16 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
                          config.hyperparams.per_run())
     steps = (config.max_steps, config.episodes)
     shaped: Any = jax.ShapeDtypeStruct  # a batch of shapes, in place of arrays
-    batch = losses.Batch(shaped((*steps, 4), floats), shaped(steps, jnp.int32),
+    batch = losses.Batch(shaped((*steps, config.env_module.OBS_SIZE), floats),
+                         shaped(steps, floats if config.num_actions is None else jnp.int32),
                          shaped(steps, floats), shaped(steps, bool), shaped(steps, floats))
-    logit = jax.eval_shape(functools.partial(policies.logits, config.network), params["policy"],
-                           batch.obs)
-    if not jnp.issubdtype(logit.dtype, jnp.floating):
-        raise ValueError(f"policy: the module's logits must be floating, got {logit.dtype}")
+    apply_fn = functools.partial(policies.distribution, config.network,
+                                 num_actions=config.num_actions)
+    dist = jax.eval_shape(apply_fn, params["policy"], batch.obs)
+    if not all(jnp.issubdtype(leaf.dtype, jnp.floating) for leaf in jax.tree.leaves(dist)):
+        raise ValueError(f"policy: the module's logits must be floating, got "
+                         f"{jax.tree.leaves(dist)[0].dtype}")
     loss_fn = losses.resolve(config.loss)
-    apply_fn = functools.partial(policies.logits, config.network)
     has_critic = losses.critic(config.loss) is not None
     played = batch._replace(log_prob=shaped(steps, floats), values=shaped(steps, floats))
     out = jax.eval_shape(lambda p, b, h: loss_fn(p if has_critic else p["policy"], apply_fn, b, h),

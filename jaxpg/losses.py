@@ -4,15 +4,17 @@ A loss is a function `loss(params, apply_fn, batch, hyper) -> (loss, metrics)` o
 (`LossFn`):
 
 - `params`: the policy's parameters; for a loss with a `critic` (a flax module mapping
-  observations `[..., 4]` to values `[...]`), `{"policy": ..., "critic": ...}`, each stepped by
+  observations `[..., K]` to values `[...]`), `{"policy": ..., "critic": ...}`, each stepped by
   its own optimizer.
-- `apply_fn(policy_params, obs [..., 4]) -> logits [...]`: the logit of P(push left).
+- `apply_fn(policy_params, obs [..., K]) -> dist`: the policy's action distribution
+  (`jaxpg.distributions`): on CartPole the logit of P(push left) `[...]`, elsewhere a
+  `Categorical` or a `Gaussian`. `log_prob(dist, action)` and `entropy(dist)` (here) take any.
 - `batch`: a `Batch` of the iteration's episodes, `[T, E]` (time, episodes).
 - `hyper`: the run's `Hyperparams` (learning rate, discount, entropy coefficient), scalars.
 - `loss` is a scalar to minimise; `metrics` a dict of scalars, kept per iteration
   (`Metrics.extra`).
 
-The trainer adds `-entropy_coef * masked_mean(entropy(logits), alive)` to any loss. It evaluates
+The trainer adds `-entropy_coef * masked_mean(entropy(dist), alive)` to any loss. It evaluates
 the loss for many runs at once (`jaxpg.runwise`), with its sums in a fixed order.
 """
 
@@ -24,6 +26,8 @@ import jax
 import jax.numpy as jnp
 
 from jaxpg import returns, sums
+from jaxpg.distributions import entropy as entropy  # re-exported: a loss writer's helpers
+from jaxpg.distributions import log_prob as log_prob
 from jaxpg.types import Array, ArrayLike, Params
 
 if TYPE_CHECKING:
@@ -36,8 +40,9 @@ class Batch(NamedTuple):
     Steps after an episode ended have `alive` False and zero reward.
 
     Attributes:
-      obs: float `[T, E, 4]`, the observation each action was chosen from.
-      action: int32 `[T, E]`: 0 pushed left, 1 right.
+      obs: float `[T, E, K]`, the observation each action was chosen from.
+      action: `[T, E]`: int32 for discrete actions (on CartPole 0 pushed left, 1 right), float
+        for a continuous one (as sampled, before the environment clipped it).
       reward: float `[T, E]`.
       alive: bool `[T, E]`: the step belongs to its episode.
       returns: float `[T, E]`, discounted returns-to-go, not normalised; 0 where not alive.
@@ -56,38 +61,10 @@ class Batch(NamedTuple):
     values: Array | None = None
 
 
-# `apply_fn(policy_params, obs [..., 4]) -> logits [...]`, the logit of P(push left).
-ApplyFn = Callable[[Params, Array], Array]
+# `apply_fn(policy_params, obs [..., K]) -> dist`, the policy's action distribution.
+ApplyFn = Callable[[Params, Array], Any]
 # `loss(params, apply_fn, batch, hyper) -> (scalar loss, {name: scalar metric})`.
 LossFn = Callable[[Params, ApplyFn, Batch, "Hyperparams"], tuple[Array, dict[str, Array]]]
-
-
-def log_prob(logits: Array, action: Array) -> Array:
-    """log pi(action | obs) from the logit of P(left): `log sigmoid(logit)` for action 0.
-
-    Args:
-      logits: float `[...]`, the logit of P(push left).
-      action: int `[...]`, 0 (left) or 1 (right).
-
-    Returns:
-      float `[...]`, the log-probability of each action.
-    """
-    return jax.nn.log_sigmoid(jnp.where(action == 0, logits, -logits))
-
-
-def entropy(logits: Array) -> Array:
-    """The entropy of the policy's action distribution, in nats, from the logit of P(left).
-
-    H = -p log p - (1 - p) log(1 - p) with p = sigmoid(logit), computed as the equal
-    softplus(logit) - logit * sigmoid(logit): one logarithm and two exponentials per step.
-
-    Args:
-      logits: float `[...]`, the logit of P(push left).
-
-    Returns:
-      float `[...]`, the entropy of each step's distribution.
-    """
-    return jax.nn.softplus(logits) - logits * jax.nn.sigmoid(logits)
 
 
 def masked_mean(values: ArrayLike, alive: Array) -> Array:
@@ -116,7 +93,7 @@ def reinforce(params: Params, apply_fn: ApplyFn, batch: Batch,
 
     Args:
       params: the policy's parameters.
-      apply_fn: the policy's logits, `apply_fn(params, obs)`.
+      apply_fn: the policy's distribution, `apply_fn(params, obs)`.
       batch: one run's episodes `[T, E]`.
       hyper: the run's `Hyperparams` (unused).
 
@@ -142,7 +119,7 @@ def reward_to_go(params: Params, apply_fn: ApplyFn, batch: Batch,
 
 
 class ValueNetwork(nn.Module):
-    """Dense(hidden) -> elu -> ... -> a weighted sum: a state's value `[...]` from obs `[..., 4]`.
+    """Dense(hidden) -> elu -> ... -> a weighted sum: a state's value `[...]` from obs `[..., K]`.
 
     By default `hidden=()`: a linear function of the observation, the baseline's default critic.
     The output's weights start as flax's `Dense` kernels do (LeCun normal), its bias at 0.
@@ -157,7 +134,7 @@ class ValueNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: Array) -> Array:
-        """The value of each observation: float obs `[..., 4]` -> values `[...]`."""
+        """The value of each observation: float obs `[..., K]` -> values `[...]`."""
         features = obs
         for size in self.hidden:
             features = nn.elu(nn.Dense(size)(features))
@@ -182,7 +159,7 @@ class Baseline:
     a subclass's).
 
     Args:
-      critic: the value network, a flax module mapping obs `[..., 4]` to values `[...]`.
+      critic: the value network, a flax module mapping obs `[..., K]` to values `[...]`.
     """
 
     # A flax module is an immutable dataclass: one default instance is safe to share.
@@ -195,7 +172,7 @@ class Baseline:
 
         Args:
           params: `{"policy": ..., "critic": ...}`, the two networks' parameters.
-          apply_fn: the policy's logits, `apply_fn(params["policy"], obs)`.
+          apply_fn: the policy's distribution, `apply_fn(params["policy"], obs)`.
           batch: one run's episodes `[T, E]`.
           hyper: the run's `Hyperparams` (unused).
 
@@ -241,7 +218,7 @@ class PPO(Baseline):
     was clipped) and `approx_kl` (mean of (rho_t - 1) - log rho_t).
 
     Args:
-      critic: the value network, a flax module mapping obs `[..., 4]` to values `[...]`.
+      critic: the value network, a flax module mapping obs `[..., K]` to values `[...]`.
       clip: epsilon, how far the ratio may move from 1, positive.
       gae_lambda: lambda of the advantage estimates, in [0, 1].
       value_coef: the weight of the value loss, at least 0.

@@ -1,12 +1,15 @@
-"""Policies: the book's hand-coded angle policy and the flax policy network.
+"""Policies: the book's hand-coded angle policy and the flax policy networks.
 
-A policy, as `rollout` uses it, maps a batch of observations `[E, 4]` and uniforms `u [E]` in
-[0, 1) to actions `[E]`: 0 pushes left, 1 pushes right.
+A policy, as `rollout` uses it, maps a batch of observations `[E, K]` and uniforms `u [E]` in
+[0, 1) to actions `[E]`: on CartPole 0 pushes left, 1 pushes right. A policy module's output is
+an action distribution (`jaxpg.distributions`): the logit of P(push left) on CartPole, n logits on
+another discrete environment, a mean and a log standard deviation on a continuous one.
 """
 
 import functools
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Self
 
 import flax.linen as nn
 import jax
@@ -14,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxpg import runwise, sums
+from jaxpg import distributions, runwise, sums
 from jaxpg.types import Action, Observation, Params, PRNGKey
 from jaxpg.validation import check_choice
 
@@ -62,7 +65,8 @@ def check_network(hidden: Sequence[int], activation: str) -> None:
 
 
 class PolicyNetwork(nn.Module):
-    """Dense(hidden) -> activation -> ... -> Dense(1): the logit of P(push left) `[...]`.
+    """Dense(hidden) -> activation -> ... -> Dense(outputs): the logit of P(push left) `[...]`, or
+    the logits of n actions `[..., n]`.
 
     Weights start Glorot-uniform and biases at zero, as Keras's Dense does. Its own `apply` is
     flax's dense layers, which the trainer differentiates as any module's (`jaxpg.runwise`);
@@ -72,6 +76,30 @@ class PolicyNetwork(nn.Module):
     Attributes:
       hidden: the sizes of the hidden layers; none for a linear policy.
       activation: the name of the activation after each hidden layer, one of `ACTIVATIONS`.
+      outputs: 1 for CartPole's one logit `[...]`; n for the logits of n actions `[..., n]`.
+    """
+
+    hidden: Sequence[int] = (5,)
+    activation: str = "elu"
+    outputs: int = 1
+
+    @nn.compact
+    def __call__(self, obs: Observation) -> jax.Array:
+        """The logits `[...]` (`[..., n]`) for observations `[..., K]`."""
+        features = obs
+        for size in self.hidden:
+            features = ACTIVATIONS[self.activation](_dense(size)(features))
+        out = _dense(self.outputs)(features)
+        return out[..., 0] if self.outputs == 1 else out
+
+
+class GaussianNetwork(nn.Module):
+    """A `PolicyNetwork` of one output for the mean of a continuous action, and a learned log
+    standard deviation, one parameter starting at 0: (mean, log std) `[..., 2]`.
+
+    Attributes:
+      hidden: the sizes of the mean's hidden layers.
+      activation: their activation, one of `ACTIVATIONS`.
     """
 
     hidden: Sequence[int] = (5,)
@@ -79,11 +107,10 @@ class PolicyNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: Observation) -> jax.Array:
-        """The logits `[...]` of P(push left) for observations `[..., 4]`."""
-        features = obs
-        for size in self.hidden:
-            features = ACTIVATIONS[self.activation](_dense(size)(features))
-        return _dense(1)(features)[..., 0]
+        """(mean, log std) `[..., 2]` for observations `[..., K]`."""
+        mean = PolicyNetwork(self.hidden, self.activation)(obs)
+        log_std = self.param("log_std", nn.initializers.zeros, ())
+        return jnp.stack([mean, jnp.broadcast_to(log_std, mean.shape)], axis=-1)
 
 
 def _dense(features: int) -> nn.Dense:
@@ -197,17 +224,18 @@ def _dense_bwd(residuals: tuple[jax.Array, jax.Array], grad: jax.Array
 dense.defvjp(_dense_fwd, _dense_bwd)
 
 
-def init_network(key: PRNGKey, network: nn.Module) -> Params:
+def init_network(key: PRNGKey, network: nn.Module, obs_size: int = 4) -> Params:
     """Initial `policy_params` of a policy module (a `PolicyNetwork` or any other).
 
     Args:
       key: PRNG key.
-      network: the module, initialised by `network.init` on one observation `[4]`.
+      network: the module, initialised by `network.init` on one observation `[obs_size]`.
+      obs_size: K, the size of the environment's observations (CartPole's 4 by default).
 
     Returns:
       Its parameters, without run axes.
     """
-    return network.init(key, jnp.zeros((4,)))
+    return network.init(key, jnp.zeros((obs_size,)))
 
 
 def parameter_shapes(network: PolicyNetwork) -> ParameterShapes:
@@ -259,90 +287,84 @@ def unflatten(flat: jax.Array | np.ndarray, network: PolicyNetwork) -> Params:
                                      for shape, start, stop in zip(shapes, bounds, bounds[1:])])
 
 
-def logits(module: nn.Module, policy_params: Params, obs: Observation) -> jax.Array:
-    """The logit of P(push left) `[...]` of a policy module for observations `[..., 4]`.
-
-    The module returns that logit as `[...]` or `[..., 1]`, or the logits of (left, right) as
-    `[..., 2]`, whose difference it is.
+def distribution(module: nn.Module, policy_params: Params, obs: Observation,
+                 num_actions: int | None = 2) -> Any:
+    """The action distribution of a policy module for observations `[..., K]`.
 
     Args:
       module: a flax policy module.
       policy_params: its parameters.
-      obs: observations `[..., 4]`.
+      obs: observations `[..., K]`.
+      num_actions: the environment's discrete actions (CartPole's 2); None for a continuous one.
 
     Returns:
-      The logits `[...]`.
+      `distributions.from_output` of the module's output: CartPole's logit of P(push left)
+      `[...]` (from `[...]`, `[..., 1]` or two logits `[..., 2]`), a `Categorical` or a
+      `Gaussian`.
 
     Raises:
-      ValueError: for a module's output of any other shape.
+      ValueError: for a module's output of another shape.
     """
     # (flax types `apply` as also returning a state, which it does only when asked to mutate.)
     out: jax.Array = module.apply(policy_params, obs)  # type: ignore[assignment]
-    batch = obs.shape[:-1]
-    if out.shape == batch:
-        return out
-    if out.shape == (*batch, 1):
-        return out[..., 0]
-    if out.shape == (*batch, 2):
-        return out[..., 0] - out[..., 1]
-    raise ValueError(f"policy: for observations {obs.shape} the module must return logits shaped "
-                     f"{batch}, {(*batch, 1)} or {(*batch, 2)}, got {out.shape}")
-
-
-def sample_action(logit: jax.Array, u: jax.Array) -> Action:
-    """Pushes left with probability sigmoid(logit): action 1 (right) when u > P(left), as the book.
-
-    Args:
-      logit: the logits of P(push left) `[...]`.
-      u: uniforms in [0, 1) `[...]`.
-
-    Returns:
-      int32 actions `[...]`.
-    """
-    return (u > jax.nn.sigmoid(logit)).astype(jnp.int32)
+    return distributions.from_output(out, obs.shape, num_actions)
 
 
 @struct.dataclass
 class NetworkPolicy:
-    """A policy module and its parameters as a policy `(obs [E, 4], u [E]) -> action [E]` that
-    samples its actions (`network_policy`).
+    """A policy module and its parameters as a policy `(obs [E, K], u [E]) -> action [E]` that
+    samples its actions, or takes the likeliest (`network_policy`).
 
     A pytree of the parameters (the module and `runs` are static): a compiled function that takes
     it as an argument serves every policy of the same module and shapes without compiling again.
 
     Attributes:
-      network: static: the policy module, a `PolicyNetwork` or any other (`logits`).
+      network: static: the policy module, a `PolicyNetwork` or any other (`distribution`).
       policy_params: its parameters, with any run axes (`network_policy`).
       runs: static: whether another module's parameters carry a trailing run axis.
+      num_actions: static: the environment's discrete actions; None for a continuous one.
+      greedy: static: take the likeliest action (`distributions.mode`) rather than sample.
     """
 
     network: nn.Module = struct.field(pytree_node=False)
     policy_params: dict
     runs: bool = struct.field(pytree_node=False, default=False)
+    num_actions: int | None = struct.field(pytree_node=False, default=2)
+    greedy: bool = struct.field(pytree_node=False, default=False)
+
+    if TYPE_CHECKING:  # flax.struct adds it to the class
+        def replace(self, **updates: Any) -> Self:
+            """A copy with the fields `updates` names replaced."""
+            ...
 
     def __call__(self, obs: Observation, u: jax.Array) -> Action:
-        """Actions `[E]` (`[E, R]`) for observations `[E, 4]` (`[E, R, 4]`) and uniforms `u`."""
-        if isinstance(self.network, PolicyNetwork):
-            return sample_action(forward(self.policy_params, obs, self.network.activation), u)
-        # Any other module's sums in a fixed order (`runwise`), alone as beside other runs, so
-        # that a run acts alike in both.
-        run_logits = runwise.runwise(functools.partial(logits, self.network), batched=self.runs)
-        return sample_action(
-            run_logits(self.policy_params, jnp.moveaxis(obs, -2, -1) if self.runs else obs), u)
+        """Actions `[E]` (`[E, R]`) for observations `[E, K]` (`[E, R, K]`) and uniforms `u`."""
+        if isinstance(self.network, PolicyNetwork) and self.num_actions == 2:
+            dist = forward(self.policy_params, obs, self.network.activation)
+        else:
+            # Any other module's sums in a fixed order (`runwise`), alone as beside other runs,
+            # so that a run acts alike in both; its output's run axis moved before the actions'.
+            run_dist = runwise.runwise(functools.partial(
+                distribution, self.network, num_actions=self.num_actions), batched=self.runs)
+            dist = run_dist(self.policy_params, jnp.moveaxis(obs, -2, -1) if self.runs else obs)
+            if self.runs:
+                dist = jax.tree.map(lambda leaf: jnp.moveaxis(leaf, -1, u.ndim - 1), dist)
+        return distributions.mode(dist) if self.greedy else distributions.sample(dist, u)
 
 
-def network_policy(network: nn.Module, policy_params: Params, runs: bool = False
-                   ) -> NetworkPolicy:
-    """A policy module as a policy `(obs [E, 4], u [E]) -> action [E]` that samples its actions.
+def network_policy(network: nn.Module, policy_params: Params, runs: bool = False,
+                   num_actions: int | None = 2) -> NetworkPolicy:
+    """A policy module as a policy `(obs [E, K], u [E]) -> action [E]` that samples its actions.
 
     Args:
       network: a `PolicyNetwork` or any other policy module (`logits`).
       policy_params: its parameters. For a `PolicyNetwork` they may hold R runs' parameters on
         trailing axes (kernels `[K, N, R]`), for observations `[E, R, 4]` (computed by `forward`).
       runs: for any other module: whether the parameters carry a trailing run axis `[..., R]`
-        (observations `[E, R, 4]`, uniforms `[E, R]`).
+        (observations `[E, R, K]`, uniforms `[E, R]`).
+      num_actions: the environment's discrete actions (CartPole's 2); None for a continuous one.
 
     Returns:
       A `NetworkPolicy`.
     """
-    return NetworkPolicy(network, policy_params, runs)
+    return NetworkPolicy(network, policy_params, runs, num_actions)

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import cartpole, executables, policies
+from jaxpg import envs, executables, policies
 from jaxpg.iteration import (
     Evaluation,
     Metrics,
@@ -92,7 +92,7 @@ def compiled_program(config: TrainConfig) -> Program:
     their hyperparameters (but for whether the entropy coefficient is 0: only then can the fast
     path serve, `TrainConfig.hand_gradient`) or of their physics share one: those values are the
     runs' `Hyperparams`, arguments of the program. Only the physics' static fields (the
-    integrator, the reward scheme) are the program's.
+    integrator, the reward scheme, Acrobot's equations) are the program's.
 
     Args:
       config: the `TrainConfig`.
@@ -100,12 +100,10 @@ def compiled_program(config: TrainConfig) -> Program:
     Returns:
       The `Program`, the same object for every config that shares it (up to a cache's size).
     """
-    env = config.env_params
     return _program(dataclasses.replace(
         config, iterations=1, solved_return=0.0, learning_rate=0.01, discount=0.95,
         entropy_coef=float(config.entropy_coef != 0),
-        env=cartpole.V1.replace(integrator=env.integrator,
-                                sutton_barto_reward=env.sutton_barto_reward)))
+        env=envs.program_params(config.env_params)))
 
 
 # Runs are initialised once: compiled for speed of compiling, not of running (docs/performance.md).

@@ -54,7 +54,8 @@ def check_init_params(config: TrainConfig, init_params: Params, critic: bool = F
                      else ("init_params", config.network))
     if network is None:
         raise ValueError(f"{name}: the loss {config.loss!r} has no critic")
-    want = jax.eval_shape(lambda key: policies.init_network(key, network),
+    want = jax.eval_shape(lambda key: policies.init_network(key, network,
+                                                         config.env_module.OBS_SIZE),
                           jax.ShapeDtypeStruct((2,), np.uint32))
     try:
         params = jax.tree.map(lambda w, leaf: np.asarray(leaf, w.dtype), want, init_params)

@@ -1,7 +1,10 @@
-"""Batched CartPole episodes (`lax.scan` over time, every episode at once) and auto-reset streams.
+"""Batched episodes of any environment (`lax.scan` over time, every episode at once), and
+CartPole's auto-reset streams.
 
-A policy for `rollout` is a function `(obs [E, 4], u [E]) -> action [E]` acting on a whole batch
-of observations at once; `u` is uniform in [0, 1), drawn in bulk by the rollout for every step.
+The environment is the module of the params given (`jaxpg.envs.module_of`): CartPole or another
+of `jaxpg.envs`. A policy for `rollout` is a function `(obs [E, K], u [E]) -> action [E]` acting
+on a whole batch of observations at once; `u` is uniform in [0, 1), drawn in bulk by the rollout
+for every step. Actions are integers for a discrete environment, floats for a continuous one.
 `rollout` also plays R independent runs at once (R keys, a policy with R sets of weights): every
 array then has a trailing run axis, which XLA vectorises over, and run r's episodes are exactly
 those it would play alone. Without run axes XLA vectorises over the episodes, in whole vectors
@@ -12,13 +15,13 @@ the lanes left over, and drops the copies from what it returns (its policy sees 
 import functools
 import math
 from collections.abc import Callable
-from typing import NamedTuple, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import cartpole, rng
+from jaxpg import cartpole, envs, rng, sums
 from jaxpg.cartpole import CartPoleParams, CartPoleState
 from jaxpg.types import Action, ArrayLike, Observation, Policy, PRNGKey
 
@@ -34,8 +37,8 @@ class Transition(NamedTuple):
     With R runs, every field has a run axis after the episodes' (`[T, E, R, ...]`).
     """
 
-    obs: jax.Array  # [T, E, 4] observation the action was chosen from
-    action: jax.Array  # [T, E] int32
+    obs: jax.Array  # [T, E, K] observation the action was chosen from
+    action: jax.Array  # [T, E] int32 (float for a continuous action)
     reward: jax.Array  # [T, E], 0 where not alive
     alive: jax.Array  # [T, E] bool: the step belongs to the episode
 
@@ -46,8 +49,9 @@ class Episodes(NamedTuple):
     transitions: Transition  # [T, E, ...]
     returns: jax.Array  # [E] sum of rewards over the alive steps, in the rewards' float dtype
     lengths: jax.Array  # [E] int32 number of alive steps
-    # [] bool ([R] for R runs): whether the policy gave an action other than 0 or 1 on an alive
-    # step, which CartPole played as 0 (push left); a caller of a user's policy raises it.
+    # [] bool ([R] for R runs): whether the policy gave an action outside the environment's on an
+    # alive step (CartPole played another than 0 or 1 as 0, push left; a continuous environment
+    # one that is not finite); a caller of a user's policy raises it (`check_played_actions`).
     invalid_action: jax.Array | None = None
 
 
@@ -55,20 +59,33 @@ CHUNK = 20  # steps simulated between checks whether every episode has ended
 LANES = 16  # floats in a vector of AVX-512, two of AVX2
 
 
-def reset_batch(key: PRNGKey, num: int, env_params: CartPoleParams, repeat_to: int | None = None
-                ) -> tuple[Observation, CartPoleState]:
-    """`num` initial states drawn with one call to the random number generator.
+def reset_batch(key: PRNGKey, num: int, env_params: Any, repeat_to: int | None = None
+                ) -> tuple[Observation, Any]:
+    """`num` initial states of the environment of `env_params`.
+
+    CartPole's are drawn with one call to the random number generator; another environment's by
+    its own `reset`, from a key per episode (`rng.split(key, num)`).
 
     Args:
       key: PRNG key, or R keys `[R, 2]`.
       num: the number of states drawn.
-      env_params: `CartPoleParams`, whose reset bounds the values are uniform in.
+      env_params: the environment's params, whose reset bounds the values are drawn within.
       repeat_to: optional: that many states (in place of `num` in the shapes below), the `num`
         drawn ones, then the first ones again, drawn so that the copies cost nothing more.
 
     Returns:
-      (obs `[num, 4]`, state with `[num]` leaves); with R keys, `[num, R, 4]` and `[num, R]`.
+      (obs `[num, K]`, state with `[num]` leaves); with R keys, `[num, R, K]` and `[num, R]`.
     """
+    module = envs.module_of(env_params)
+    if module is not cartpole:
+        keys = rng.split(key, num)
+        if repeat_to is not None:
+            keys = keys[np.arange(repeat_to) % num]
+        batch = keys.shape[:-1]
+        # Every leaf of the params spread over the episodes (and runs), reset one by one.
+        spread = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, batch).reshape(-1), env_params)
+        obs, state = jax.vmap(module.reset)(keys.reshape(-1, 2), spread)
+        return jax.tree.map(lambda leaf: leaf.reshape(*batch, *leaf.shape[1:]), (obs, state))
     repeat = None if repeat_to is None else (0, repeat_to)
     values = rng.uniform(key, (num, 4), env_params.reset_low, env_params.reset_high, repeat=repeat)
     state = cartpole.CartPoleState.from_array(jnp.moveaxis(values, 1, -1))
@@ -82,25 +99,27 @@ def _select(done: jax.Array, old: _Tree, new: _Tree) -> _Tree:
 
 def _record(features: jax.Array, action: jax.Array, reward: jax.Array, alive: jax.Array
             ) -> jax.Array:
-    """One step's transition as one array `[7, E, ...]`: features, action, reward, alive."""
+    """One step's transition as one array `[K + 3, E, ...]`: the observation's K features,
+    action, reward, alive."""
     dtype = features.dtype
     return jnp.concatenate(
         [features, jnp.stack([action.astype(dtype), reward.astype(dtype), alive.astype(dtype)])])
 
 
-def _transitions(records: jax.Array) -> Transition:
-    """`Transition` from records `[T, 7, E, ...]`."""
-    # Observations are stored features first, each step's four values contiguous for the policy
-    # and for the gradient that reads them back (`[T, 4, E]`, which XLA keeps as it is when
+def _transitions(records: jax.Array, discrete: bool) -> Transition:
+    """`Transition` from records `[T, K + 3, E, ...]`; int32 actions if `discrete`."""
+    # Observations are stored features first, each step's K values contiguous for the policy
+    # and for the gradient that reads them back (`[T, K, E]`, which XLA keeps as it is when
     # a consumer moves the features first again).
-    return Transition(obs=jnp.moveaxis(records[:, :4], 1, -1),
-                      action=records[:, 4].astype(jnp.int32),
-                      reward=records[:, 5],
-                      alive=records[:, 6] != 0)
+    k = records.shape[1] - 3
+    return Transition(obs=jnp.moveaxis(records[:, :k], 1, -1),
+                      action=records[:, k].astype(jnp.int32) if discrete else records[:, k],
+                      reward=records[:, k + 1],
+                      alive=records[:, k + 2] != 0)
 
 
-def rollout(key: PRNGKey, policy: Policy, env_params: CartPoleParams, num_episodes: int,
-            max_steps: int, init_state: CartPoleState | None = None, lanes: int = 1) -> Episodes:
+def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
+            max_steps: int, init_state: Any = None, lanes: int = 1) -> Episodes:
     """Plays `num_episodes` episodes of at most `max_steps` steps with `policy`.
 
     Time runs in chunks of `CHUNK` steps; once every episode has ended, the remaining chunks are
@@ -109,12 +128,13 @@ def rollout(key: PRNGKey, policy: Policy, env_params: CartPoleParams, num_episod
     Args:
       key: PRNG key for the initial states and the policy's uniforms; or R keys `[R, 2]` to play R
         runs at once, each as its key alone would.
-      policy: `(obs [E, 4], u [E]) -> action [E]`; for R runs, `(obs [E, R, 4], u [E, R])`.
-      env_params: `CartPoleParams`; an episode also ends when `env_params.max_steps` truncates it.
+      policy: `(obs [E, K], u [E]) -> action [E]`; for R runs, `(obs [E, R, K], u [E, R])`.
+      env_params: the environment's params (`CartPoleParams` or another of `jaxpg.envs`); an
+        episode also ends when `env_params.max_steps` truncates it.
       num_episodes: E.
       max_steps: T, the length of the trajectory.
-      init_state: optional `CartPoleState` with `[E]` (or `[E, R]`) leaves, in place of random
-        resets.
+      init_state: optional state of the environment with `[E]` (or `[E, R]`) leaves, in place
+        of random resets.
       lanes: the episodes are played in a multiple of this many lanes, the first ones again in the
         lanes left over; the policy sees every lane, the result only the E episodes.
 
@@ -122,9 +142,11 @@ def rollout(key: PRNGKey, policy: Policy, env_params: CartPoleParams, num_episod
       `Episodes` with transitions of shape `[T, E, ...]` (`[T, E, R, ...]` for R runs).
 
     Raises:
-      ValueError: as it is traced, if the policy does not return one integer action per
-        observation (`check_actions`).
+      ValueError: as it is traced, if the policy does not return one action of the
+        environment's kind per observation (`check_actions`).
     """
+    module = envs.module_of(env_params)
+    discrete = envs.is_discrete(module)
     key_reset, key_policy = rng.split(key)
     played = -(-num_episodes // lanes) * lanes
     if init_state is None:
@@ -136,21 +158,27 @@ def rollout(key: PRNGKey, policy: Policy, env_params: CartPoleParams, num_episod
     noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes), repeat=(2, played))
     steps = np.arange(num_chunks * chunk, dtype=np.int32).reshape(num_chunks, chunk)  # a constant
 
-    # The carry is one array, the features and whether the episode ended `[5, E, R]`, and so is a
-    # step's record: few kernels per step, which XLA runs in sequence (docs/performance.md).
+    # The carry is one array, the state's S values and whether the episode ended `[S + 1, E, R]`,
+    # and so is a step's record: few kernels per step, which XLA runs in sequence
+    # (docs/performance.md).
+    size = init_state.to_array(axis=0).shape[0]
+
+    def state_of(features: jax.Array, t: jax.Array) -> Any:
+        """The environment's state of values `[S, ...]` after `t` steps of the trajectory."""
+        return type(init_state).from_array(jnp.moveaxis(features, 0, -1), init_state.time + t)
+
     def one_step(carry: jax.Array, step: tuple[jax.Array, jax.Array]
                  ) -> tuple[jax.Array, jax.Array]:
-        """One step of every episode: (carry `[5, E, ...]`, record `[7, E, ...]`)."""
+        """One step of every episode: (carry `[S + 1, E, ...]`, record `[K + 3, E, ...]`)."""
         u, t = step
-        features, done = carry[:4], carry[4] != 0
-        # (`features` is `[4, ...]`: four positional values before `time`.)
-        state = cartpole.CartPoleState(*features, time=init_state.time + t)  # type: ignore[misc]
-        obs = jnp.moveaxis(features, 0, -1)
+        features, done = carry[:size], carry[size] != 0
+        state = state_of(features, t)
+        obs = module.observe(state)
         action = policy(obs, u)
-        check_actions(action, obs)
-        _, next_state, reward, terminated, truncated = cartpole.step(state, action, env_params)
+        check_actions(action, obs, discrete)
+        _, next_state, reward, terminated, truncated = module.step(state, action, env_params)
         alive = ~done
-        record = _record(features, action, jnp.where(alive, reward, 0.0), alive)
+        record = _record(jnp.moveaxis(obs, -1, 0), action, jnp.where(alive, reward, 0.0), alive)
         next_features = jnp.where(done, features, next_state.to_array(axis=0))
         done = done | terminated | truncated
         return jnp.concatenate([next_features, done[None].astype(features.dtype)]), record
@@ -163,8 +191,9 @@ def rollout(key: PRNGKey, policy: Policy, env_params: CartPoleParams, num_episod
     def skip_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
                    ) -> tuple[jax.Array, jax.Array]:
         """`CHUNK` masked records of episodes that have all ended, without simulating them."""
-        features = carry[:4]
-        frozen = _record(features, jnp.zeros(features.shape[1:], jnp.int32),
+        features = carry[:size]
+        frozen = _record(jnp.moveaxis(module.observe(state_of(features, steps[1][0])), -1, 0),
+                         jnp.zeros(features.shape[1:], jnp.int32),
                          jnp.zeros(features.shape[1:], features.dtype),
                          jnp.zeros(features.shape[1:], bool))
         return carry, jnp.broadcast_to(frozen, (chunk, *frozen.shape))
@@ -172,47 +201,68 @@ def rollout(key: PRNGKey, policy: Policy, env_params: CartPoleParams, num_episod
     def one_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
                   ) -> tuple[jax.Array, jax.Array]:
         """`play_chunk`, or `skip_chunk` once every episode has ended."""
-        return jax.lax.cond(jnp.all(carry[4] != 0), skip_chunk, play_chunk, carry, steps)
+        return jax.lax.cond(jnp.all(carry[size] != 0), skip_chunk, play_chunk, carry, steps)
 
     features = init_state.to_array(axis=0)
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
     # (scan's stubs type each slice of `xs` as `xs` itself: numpy steps, sliced as JAX arrays.)
     _, records = jax.lax.scan(one_chunk, carry, (noise, steps))  # type: ignore[arg-type]
     records = records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps, :, :num_episodes]
-    # Rewards and alive steps summed in one reduction, exactly: they are whole numbers.
-    # As integers: XLA hands a float sum to a library call, which splits the fused iteration.
-    returns, alive_steps = records[:, 5:7].astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
-    action, alive = records[:, 4], records[:, 6] != 0
-    invalid = jnp.any(alive & (action != 0) & (action != 1), axis=(0, 1))
-    return Episodes(_transitions(records), returns.astype(records.dtype), alive_steps, invalid)
+    k = records.shape[1] - 3
+    action, alive = records[:, k], records[:, k + 2] != 0
+    if module is cartpole:
+        # Rewards and alive steps summed in one reduction, exactly: they are whole numbers.
+        # As integers: XLA hands a float sum to a library call, which splits the fused iteration.
+        returns, alive_steps = records[:, k + 1:].astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
+        returns = returns.astype(records.dtype)
+    else:  # any rewards, summed in a fixed order, a run alike alone and beside others
+        returns = sums.invariant_sum(records[:, k + 1], 0)
+        alive_steps = alive.astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
+    outside = ((action < 0) | (action > module.NUM_ACTIONS - 1) if discrete
+               else ~jnp.isfinite(action))
+    invalid = jnp.any(alive & outside, axis=(0, 1))
+    return Episodes(_transitions(records, discrete), returns, alive_steps, invalid)
 
 
-def check_actions(action: Action, obs: Observation) -> None:
-    """Checks a policy's actions for `obs` `[..., 4]` as the rollout is traced.
+def check_actions(action: Action, obs: Observation, discrete: bool = True) -> None:
+    """Checks a policy's actions for `obs` `[..., K]` as the rollout is traced.
 
     Raises:
-      ValueError: unless `action` holds one integer (or bool) action per observation, `[...]`.
+      ValueError: unless `action` holds one action per observation, `[...]`: an integer (or
+        bool) for a discrete environment, a float for a continuous one.
     """
     dtype = jnp.result_type(action)
-    if jnp.shape(action) != obs.shape[:-1] or not (
-            jnp.issubdtype(dtype, jnp.integer) or dtype == jnp.bool_):
+    if discrete and (jnp.shape(action) != obs.shape[:-1] or not (
+            jnp.issubdtype(dtype, jnp.integer) or dtype == jnp.bool_)):
         raise ValueError(f"policy: must return one integer action per observation, shaped "
-                         f"{obs.shape[:-1]} (0 pushes left, 1 right), got {dtype} "
+                         f"{obs.shape[:-1]} (on CartPole 0 pushes left, 1 right), got {dtype} "
                          f"{jnp.shape(action)}")
+    if not discrete and (jnp.shape(action) != obs.shape[:-1]
+                         or not jnp.issubdtype(dtype, jnp.floating)):
+        raise ValueError(f"policy: must return one float action per observation, shaped "
+                         f"{obs.shape[:-1]}, got {dtype} {jnp.shape(action)}")
 
 
-def check_played_actions(invalid_action: ArrayLike | None) -> None:
-    """Checks on the host that a rollout's policy gave actions 0 or 1 only.
+def check_played_actions(invalid_action: ArrayLike | None, env_params: Any = cartpole.V1
+                         ) -> None:
+    """Checks on the host that a rollout's policy gave the environment's actions only.
 
     Args:
       invalid_action: `Episodes.invalid_action`, `[]` or `[R]` bool; None passes.
+      env_params: the environment's params (CartPole's by default).
 
     Raises:
-      ValueError: if any is True: the policy gave another action, which CartPole played as 0.
+      ValueError: if any is True: the policy gave another action (CartPole played it as 0).
     """
-    if np.any(invalid_action):
+    if not np.any(invalid_action):
+        return
+    module = envs.module_of(env_params)
+    if module is cartpole:
         raise ValueError("policy: returned an action other than 0 (push left) or 1 (push right), "
                          "which CartPole played as 0")
+    allowed = (f"0 to {module.NUM_ACTIONS - 1}" if envs.is_discrete(module)
+               else "a finite number")
+    raise ValueError(f"policy: returned an action other than {allowed}")
 
 
 class StreamState(NamedTuple):

@@ -19,7 +19,6 @@ from jax.experimental import multihost_utils
 
 from jaxpg import (
     budget,
-    cartpole,
     iteration,
     programs,
     progress,
@@ -31,7 +30,6 @@ from jaxpg import (
 from jaxpg.types import Params
 from jaxpg.validation import check_choice, check_int, check_number
 
-GRID_FIELDS = (*train_config.HYPERPARAMETERS, *train_config.PHYSICS)
 EVAL_PHYSICS = ("training", "base")  # what `sweep`'s held-out episodes play in
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
 
@@ -98,7 +96,7 @@ def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, 
     Args:
       config: the `TrainConfig` of every run.
       grid: None (`config`'s one setting); a dict of field to values, whose product the settings
-        are; or a list of dicts, the settings themselves. Fields: `GRID_FIELDS`.
+        are; or a list of dicts, the settings themselves. Fields: `grid_fields(config)`.
 
     Returns:
       G dicts {field: value}: every hyperparameter, and the physical fields that the grid names.
@@ -108,16 +106,17 @@ def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, 
         or a value out of range (a mass at or below 0, a discount above 1, anything not finite).
     """
     if grid is None or isinstance(grid, dict):
+        _check_fields(dict(grid or {}), config)
         axes = _axes(dict(grid or {}))
-        names = [*train_config.HYPERPARAMETERS, *(n for n in axes if n in train_config.PHYSICS)]
+        names = [*train_config.HYPERPARAMETERS, *(n for n in axes if n in config.physics)]
         values: list[list[Any]] = [axes.get(name, [getattr(config, name, None)]) for name in names]
         settings = [dict(zip(names, combo)) for combo in itertools.product(*values)]
     elif isinstance(grid, list | tuple) and grid and all(isinstance(s, dict) for s in grid):
         named = set().union(*grid)
-        _check_fields(named)
+        _check_fields(named, config)
         settings = [{**{name: getattr(config, name) for name in train_config.HYPERPARAMETERS},
                      **{name: getattr(config.env_params, name)
-                        for name in train_config.PHYSICS if name in named},
+                        for name in config.physics if name in named},
                      **{name: check_number(name, value)
                         for name, value in setting.items()}}
                     for setting in grid]
@@ -131,17 +130,22 @@ def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, 
     return settings
 
 
-def _check_fields(names: Collection[str]) -> None:
-    """Raises a ValueError naming the fields of `names` that are not `GRID_FIELDS`."""
-    unknown = set(names) - set(GRID_FIELDS)
+def grid_fields(config: train_config.TrainConfig) -> tuple[str, ...]:
+    """The fields a grid may vary: the hyperparameters and the environment's physics."""
+    return (*train_config.HYPERPARAMETERS, *config.physics)
+
+
+def _check_fields(names: Collection[str], config: train_config.TrainConfig) -> None:
+    """Raises a ValueError naming the fields of `names` that are not `grid_fields(config)`."""
+    allowed = grid_fields(config)
+    unknown = set(names) - set(allowed)
     if unknown:
-        raise ValueError(f"grid: unknown field(s) {', '.join(sorted(unknown))}; allowed: "
-                         f"{', '.join(GRID_FIELDS)}")
+        raise ValueError(f"grid: unknown field(s) {', '.join(sorted(unknown))} of "
+                         f"{config.env_name}; allowed: {', '.join(allowed)}")
 
 
 def _axes(grid: dict[str, Any]) -> dict[str, list[float]]:
     """A dict grid's axes as lists of Python numbers; a ValueError for an empty or repeated one."""
-    _check_fields(grid)
     axes = {}
     for name, values in grid.items():
         options = [check_number(name, value)
@@ -172,8 +176,8 @@ def setting_hyperparams(
     hyper = {name: setting[name] for name in train_config.HYPERPARAMETERS}
     train_config.check_hyperparams(**hyper)
     env = config.env_params.replace(
-        **{name: value for name, value in setting.items() if name in train_config.PHYSICS})
-    cartpole.check_params(env)
+        **{name: value for name, value in setting.items() if name in config.physics})
+    config.env_module.check_params(env)
     return train_config.Hyperparams(**hyper, env=env)
 
 
@@ -294,7 +298,7 @@ def sweep(
     Args:
       config: the `TrainConfig` every run shares.
       seeds: a sequence (a range, list or array) of S distinct integers in [0, 2**32).
-      grid: optional: a dict of `GRID_FIELDS` (hyperparameters and physical fields) to values,
+      grid: optional: a dict of `grid_fields(config)` (hyperparameters and physics) to values,
         whose product the settings are, or a list of settings (`expand_grid`).
       show_progress: print a line per iteration (per chunk, when there are several).
       memory_budget: optional bytes of memory one device may use for a chunk of runs (see

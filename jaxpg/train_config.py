@@ -12,7 +12,7 @@ import jax
 import numpy as np
 import optax
 
-from jaxpg import cartpole, losses, policies
+from jaxpg import cartpole, envs, losses, policies
 from jaxpg.types import ArrayLike
 from jaxpg.validation import check_finite, check_int, check_number, check_representable, in_float64
 
@@ -32,21 +32,28 @@ class TrainConfig:
     Attributes:
       iterations: optimizer steps, each on `episodes` fresh episodes of at most `max_steps` steps.
       episodes: episodes played per optimizer step.
-      max_steps: the most steps of an episode.
+      max_steps: the most steps of an episode; None (the default) is the book's 200 on
+        CartPole, the environment's time limit (`max_steps` of its params) elsewhere.
       hidden: the hidden layer sizes of the default policy network (`policies.PolicyNetwork`),
         used where `policy` is None; `()` is a linear policy.
       activation: the default network's activation, a name of `policies.ACTIVATIONS`.
-      policy: optional flax module mapping observations `[..., 4]` to the logit of P(push left),
-        `[...]` or `[..., 1]`, or to the two logits of a categorical policy `[..., 2]`.
+      policy: optional flax module mapping observations `[..., K]` to its action distribution
+        (`jaxpg.distributions.from_output`): on CartPole the logit of P(push left), `[...]` or
+        `[..., 1]`, or the two logits of a categorical policy `[..., 2]`; on an environment of
+        n discrete actions their logits `[..., n]`; on a continuous one (mean, log standard
+        deviation) `[..., 2]`. The default network gives each environment its kind.
       loss: "reinforce" (the book's), "reward-to-go", "baseline", "ppo", or a function
         `loss(params, apply_fn, batch, hyper) -> (loss, metrics)` (`jaxpg.losses`).
       optimizer: an optax optimizer's name (one taking a `learning_rate`), or a function
         `learning_rate -> optax.GradientTransformation`.
-      env: a preset name or a `CartPoleParams`.
-      randomize: domain randomisation, `{field: (low, high)}` of physical fields (`PHYSICS`):
+      env: the environment: a name of `jaxpg.envs.MODULES` ("CartPole-v1", "Acrobot-v1", ...) or
+        an environment's params (`cartpole.CartPoleParams`, `envs.acrobot.AcrobotParams`, ...).
+      randomize: domain randomisation, `{field: (low, high)}` of physical fields (`physics`):
         every episode draws each named field uniformly in [low, high) inside the program. Kept
         as `Ranges`, sorted `(field, (low, high))` pairs of floats.
-      solved_return: the mean return that counts as solved.
+      solved_return: the mean return that counts as solved; None (the default) is the
+        environment's (`envs.solved_return`: the book's 195 on CartPole, Gymnasium's threshold
+        elsewhere), kept as that number.
       epochs: how many times each iteration's episodes are gone through, one optimizer step per
         minibatch each time (PPO's epochs); 1 by default, the book's one step.
       minibatches: how many minibatches of whole episodes each epoch splits the episodes into,
@@ -63,15 +70,16 @@ class TrainConfig:
     # Fix the program.
     iterations: int = 150
     episodes: int = 10  # per update
-    max_steps: int = 200  # per episode
+    # Per episode; None stands for the environment's, which the field holds once constructed.
+    max_steps: int = None  # type: ignore[assignment]
     hidden: tuple[int, ...] = (5,)
     activation: str = "elu"
     policy: nn.Module | None = None
     loss: str | losses.LossFn = "reinforce"
     optimizer: str | OptimizerFactory = "adam"
-    env: str | cartpole.CartPoleParams = "CartPole-v1"
+    env: Any = "CartPole-v1"  # a name, or an environment's params
     randomize: Any = ()  # a dict {field: (low, high)}, kept as `Ranges`
-    solved_return: float = 195.0
+    solved_return: float = None  # type: ignore[assignment]  # as max_steps: the environment's
     epochs: int = 1
     minibatches: int = 1
     # Varied by sweeps within one program.
@@ -83,6 +91,8 @@ class TrainConfig:
         """Converts `hidden` and `randomize` to their kept forms and checks every field."""
         if isinstance(self.hidden, Iterable) and not isinstance(self.hidden, str):
             object.__setattr__(self, "hidden", tuple(self.hidden))
+        if self.max_steps is None:
+            object.__setattr__(self, "max_steps", envs.max_steps(self.env_params))
         for name in ("iterations", "episodes", "max_steps", "epochs", "minibatches"):
             object.__setattr__(self, name, check_int(name, getattr(self, name)))
         if self.episodes % self.minibatches:
@@ -95,24 +105,51 @@ class TrainConfig:
         losses.resolve(self.loss)
         check_optimizer(self.optimizer)
         check_hyperparams(self.learning_rate, self.discount, self.entropy_coef)
+        env_params = self.env_params  # raises for an unknown name or unphysical values
+        if self.solved_return is None:
+            object.__setattr__(self, "solved_return", envs.solved_return(env_params))
         check_number("solved_return", self.solved_return)
-        _ = self.env_params  # raises for an unknown preset or unphysical values
-        object.__setattr__(self, "randomize", check_ranges(self.randomize, self.env_params))
+        if getattr(env_params, "torque_noise_max", 0):
+            raise ValueError("torque_noise_max: training plays Acrobot without torque noise, got "
+                             f"{env_params.torque_noise_max}")
+        object.__setattr__(self, "randomize", check_ranges(self.randomize, env_params))
 
     @property
-    def env_params(self) -> cartpole.CartPoleParams:
-        """The physics of `env`: a preset's, or `env` checked by `cartpole.check_params`."""
-        if isinstance(self.env, cartpole.CartPoleParams):
-            cartpole.check_params(self.env)
-            return self.env
-        return cartpole.make_params(self.env)
+    def env_params(self) -> Any:
+        """The environment's params: a preset's, or `env` checked (`envs.resolve`)."""
+        return envs.resolve(self.env)
+
+    @property
+    def env_name(self) -> str:
+        """The environment's name: `env`'s, or its module's for params (CartPole-v1's for
+        CartPole's)."""
+        return self.env if isinstance(self.env, str) else self.env_module.NAME
+
+    @property
+    def env_module(self) -> Any:
+        """The environment's module: `jaxpg.cartpole` or one of `jaxpg.envs`."""
+        return envs.module_of(self.env_params)
+
+    @property
+    def num_actions(self) -> int | None:
+        """The environment's number of discrete actions; None for a continuous action."""
+        return getattr(self.env_module, "NUM_ACTIONS", None)
+
+    @property
+    def physics(self) -> tuple[str, ...]:
+        """The environment's fields that a grid or `randomize` may vary (`envs.physics`)."""
+        return envs.physics(self.env_module)
 
     @property
     def network(self) -> nn.Module:
-        """The policy module: `policy`, or the default network of `hidden` and `activation`."""
+        """The policy module: `policy`, or the default network of `hidden` and `activation` for
+        the environment's actions (one logit on CartPole, n logits, or a `GaussianNetwork`)."""
         if self.policy is not None:
             return self.policy
-        return policies.PolicyNetwork(hidden=self.hidden, activation=self.activation)
+        if self.num_actions is None:
+            return policies.GaussianNetwork(hidden=self.hidden, activation=self.activation)
+        return policies.PolicyNetwork(hidden=self.hidden, activation=self.activation,
+                                      outputs=1 if self.num_actions == 2 else self.num_actions)
 
     @property
     def hyperparams(self) -> "Hyperparams":
@@ -132,11 +169,12 @@ class TrainConfig:
     def hand_gradient(self) -> bool:
         """Whether training takes the fast path, whose gradient `jaxpg.hand_gradient` computes.
 
-        That is the default network with the book's loss, no entropy bonus and an optimizer of
-        `ELEMENTWISE_OPTIMIZERS`.
+        That is the default network on CartPole with the book's loss, no entropy bonus and an
+        optimizer of `ELEMENTWISE_OPTIMIZERS`.
         """
         return (self.policy is None and self.loss == "reinforce" and self.entropy_coef == 0
-                and self.optimizer in ELEMENTWISE_OPTIMIZERS and self.updates == 1)
+                and self.optimizer in ELEMENTWISE_OPTIMIZERS and self.updates == 1
+                and self.env_module is cartpole)
 
     @property
     def updates(self) -> int:
@@ -159,7 +197,7 @@ class Hyperparams(NamedTuple):
     learning_rate: ArrayLike
     discount: ArrayLike
     entropy_coef: ArrayLike
-    env: cartpole.CartPoleParams
+    env: Any  # the environment's params
 
     def per_run(self, runs: int = 1) -> "Hyperparams":
         """These settings, scalars, repeated for `runs` runs.
@@ -174,11 +212,11 @@ class Hyperparams(NamedTuple):
         return stack([self] * runs)
 
 
-def check_ranges(randomize: Any, env_params: cartpole.CartPoleParams) -> Ranges:
+def check_ranges(randomize: Any, env_params: Any) -> Ranges:
     """`randomize` as sorted `(field, (low, high))` pairs of floats, checked.
 
-    Each bound is checked as the physics it stands for (`cartpole.check_params`), in JAX's default
-    float, and so is the width `high - low` that a draw scales by.
+    Each bound is checked as the physics it stands for (the environment's `check_params`), in
+    JAX's default float, and so is the width `high - low` that a draw scales by.
 
     Args:
       randomize: a dict `{field: (low, high)}`, or a list or tuple of `(field, (low, high))` pairs.
@@ -198,10 +236,12 @@ def check_ranges(randomize: Any, env_params: cartpole.CartPoleParams) -> Ranges:
         raise ValueError(f"randomize: expected a dict {{field: (low, high)}} or (field, (low, "
                          f"high)) pairs, got {randomize!r}")
     floats = jax.dtypes.canonicalize_dtype(float)
+    module = envs.module_of(env_params)
+    physics = envs.physics(module)
     ranges: dict[str, tuple[float, float]] = {}
     for name, bounds in pairs:
-        if name not in PHYSICS:
-            raise ValueError(f"randomize: unknown field {name!r}; allowed: {', '.join(PHYSICS)}")
+        if name not in physics:
+            raise ValueError(f"randomize: unknown field {name!r}; allowed: {', '.join(physics)}")
         if name in ranges:
             raise ValueError(f"randomize: {name} is given two ranges; give each field one")
         try:
@@ -212,7 +252,7 @@ def check_ranges(randomize: Any, env_params: cartpole.CartPoleParams) -> Ranges:
             raise ValueError(f"{name}: the range's low is above its high: ({low}, {high})")
         check_finite(name, (low, high))
         for bound in (low, high):
-            cartpole.check_params(env_params.replace(**{name: bound}))
+            module.check_params(env_params.replace(**{name: bound}))
         check_representable(f"{name} (high - low)", in_float64(np.subtract, high, low), floats)
         ranges[name] = (low, high)
     return tuple(sorted(ranges.items()))
@@ -229,8 +269,7 @@ ELEMENTWISE_OPTIMIZERS = frozenset({
 
 # Hyperparameters that a sweep may vary, and the physical fields of `CartPoleParams`.
 HYPERPARAMETERS = ("learning_rate", "discount", "entropy_coef")
-PHYSICS = ("gravity", "masscart", "masspole", "length", "force_mag", "tau", "x_threshold",
-           "theta_threshold_radians")
+PHYSICS = envs.physics(cartpole)
 
 
 def stack(settings: Sequence[Hyperparams]) -> Hyperparams:

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxpg import basic_policy, losses, policies, runwise
+from jaxpg import basic_policy, distributions, losses, policies, runwise
 
 
 def test_basic_policy_pushes_towards_the_lean():
@@ -53,7 +53,7 @@ def test_log_prob_and_sampling_agree():
     np.testing.assert_allclose(jnp.exp(losses.log_prob(logit, 0)), p_left, rtol=1e-6)
     np.testing.assert_allclose(jnp.exp(losses.log_prob(logit, 1)), 1 - p_left, rtol=1e-6)
     u = jax.random.uniform(jax.random.PRNGKey(0), (20000,))
-    actions = policies.sample_action(jnp.full((20000,), logit), u)
+    actions = distributions.sample(jnp.full((20000,), logit), u)
     # 20,000 Bernoulli draws: the share of left pushes is within 4 standard errors of P(left).
     assert abs(float(np.mean(actions == 0)) - float(p_left)) < 4 * np.sqrt(0.25 / 20000)
 

@@ -11,12 +11,108 @@ Every module has the same interface, as `jaxpg.cartpole`:
 - `reset(key, env_params) -> (obs, state)`, `observe(state) -> obs` and
   `step(state, action, env_params) -> (obs, state, reward, terminated, truncated)`.
 
-`MODULES` maps each Gymnasium id to its module.
+`MODULES` maps each Gymnasium id to its module, CartPole's two included; the trainer finds an
+environment's module from its params (`module_of`).
 """
 
+import dataclasses
+from types import ModuleType
+from typing import Any
+
+from jaxpg import cartpole
 from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
 
-MODULES = {module.NAME: module
-           for module in (acrobot, mountain_car, continuous_mountain_car, pendulum)}
+MODULES: dict[str, ModuleType] = {
+    **{name: cartpole for name in cartpole.PRESETS},
+    **{module.NAME: module
+       for module in (acrobot, mountain_car, continuous_mountain_car, pendulum)},
+}
+# The return that counts as solved where Gymnasium names none (Pendulum-v1): jaxpg's choice.
+_SOLVED = {"Pendulum-v1": -200.0}
+# CartPole's book threshold, below Gymnasium's 475 for v1: the book's episodes last 200 steps.
+_SOLVED_CARTPOLE = 195.0
+_BOOK_STEPS = 200
 
-__all__ = ["MODULES", "acrobot", "continuous_mountain_car", "mountain_car", "pendulum"]
+
+def module_of(env_params: Any) -> ModuleType:
+    """The environment module whose params `env_params` are.
+
+    Raises:
+      ValueError: naming `env` for anything else than one environment's params.
+    """
+    for module in dict.fromkeys(MODULES.values()):
+        if isinstance(env_params, _params_type(module)):
+            return module
+    raise ValueError(f"env: expected an environment's name ({', '.join(MODULES)}) or its params "
+                     f"(such as cartpole.CartPoleParams), got {type(env_params).__name__}")
+
+
+def _params_type(module: ModuleType) -> type:
+    """The params dataclass of an environment module."""
+    return type(next(iter(module.PRESETS.values())))
+
+
+def resolve(env: Any) -> Any:
+    """An environment's params from its name (a preset) or from its params, validated.
+
+    Args:
+      env: a name of `MODULES`, or an environment's params dataclass.
+
+    Returns:
+      The params.
+
+    Raises:
+      ValueError: naming `env` for an unknown name or another kind of value, or the field at
+        fault for invalid params (the module's `check_params`).
+    """
+    if isinstance(env, str):
+        if env not in MODULES:
+            raise ValueError(f"env: unknown {env!r}; allowed: {', '.join(MODULES)}")
+        return MODULES[env].make_params(env)
+    module_of(env).check_params(env)
+    return env
+
+
+def physics(module: ModuleType) -> tuple[str, ...]:
+    """The fields of an environment's params that sweeps and randomisation may vary.
+
+    Every number but the reset bounds and `max_steps`; static fields change the program.
+    """
+    return tuple(field.name for field in dataclasses.fields(_params_type(module))
+                 if field.metadata.get("pytree_node", True)
+                 and not field.name.startswith("reset") and field.name != "max_steps")
+
+
+def program_params(env_params: Any) -> Any:
+    """The params that stand for every physics of one compiled program: the module's first
+    preset with the static fields (which change the program) of `env_params`."""
+    static = {field.name: getattr(env_params, field.name)
+              for field in dataclasses.fields(env_params)
+              if not field.metadata.get("pytree_node", True)}
+    return next(iter(module_of(env_params).PRESETS.values())).replace(**static)
+
+
+def is_discrete(module: ModuleType) -> bool:
+    """Whether the environment's actions are integers (`NUM_ACTIONS`), not one float."""
+    return hasattr(module, "NUM_ACTIONS")
+
+
+def max_steps(env_params: Any) -> int:
+    """The most steps of a training episode by default: the environment's time limit (the book's
+    200 for CartPole)."""
+    return _BOOK_STEPS if module_of(env_params) is cartpole else int(env_params.max_steps)
+
+
+def solved_return(env_params: Any) -> float:
+    """The mean return that counts as solved by default: Gymnasium's reward threshold (195, the
+    book's, for CartPole)."""
+    module = module_of(env_params)
+    if module is cartpole:
+        return _SOLVED_CARTPOLE
+    return module.REWARD_THRESHOLDS[module.NAME] if hasattr(module, "REWARD_THRESHOLDS") else (
+        _SOLVED[module.NAME])
+
+
+__all__ = ["MODULES", "acrobot", "continuous_mountain_car", "is_discrete", "max_steps",
+           "module_of", "mountain_car", "pendulum", "physics", "program_params", "resolve",
+           "solved_return"]
