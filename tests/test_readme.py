@@ -48,6 +48,16 @@ def test_ppo_example_solves_cartpole(capsys):
     assert set(namespace) >= {"ppo"}
 
 
+def test_other_environments_train_and_learn():
+    namespace = _run("Other environments")
+    results = namespace["results"]
+    assert [setting["link_mass_2"] for setting in results.grid] == [1.0, 1.5]
+    assert results.metrics.mean_return.shape == (2, 16, 50)
+    # A random Acrobot policy rarely swings up within the 500 steps (return about -500).
+    assert np.median(results.summary.final_return[0]) > -400
+    assert namespace["pendulum"].randomize == (("mass", (0.8, 1.2)),)
+
+
 def test_sweeps_robustness_and_statistics_run():
     namespace = _run("Sweeps, robustness and statistics")
     assert namespace["table"].returns.shape == (1, 32, 6, 100)  # [G, S, P, episodes]
