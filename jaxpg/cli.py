@@ -21,12 +21,8 @@ import warnings
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any, NoReturn, TextIO, cast
 
-import numpy as np
-
-from jaxpg.validation import check_int
-
-if TYPE_CHECKING:  # (the commands import jaxpg's modules when they run, not on import)
-    import flax.linen as nn
+if TYPE_CHECKING:  # (the commands import numpy and jaxpg's modules when they run: `main`)
+    import numpy as np
 
     from jaxpg.evaluation import Robustness
     from jaxpg.train_config import TrainConfig
@@ -98,10 +94,9 @@ def _physics(text: str) -> tuple[float, float] | list[float]:
 
 
 def _add_physics_args(parser: argparse.ArgumentParser, ranges: bool = True) -> None:
-    """Adds a flag per physics field (`--length`, ...): values, and ranges where `ranges`."""
-    from jaxpg.train_config import PHYSICS
-
-    for name in PHYSICS:
+    """Adds a flag per physics field of any environment (`--length`, ...): values, and ranges
+    where `ranges`; `_physics_settings` refuses one that `--env` does not have."""
+    for name in _physics_fields():
         if ranges:
             parser.add_argument(f"--{name.replace('_', '-')}", type=_physics,
                                 metavar="V[,V...]|LOW:HIGH",
@@ -113,13 +108,40 @@ def _add_physics_args(parser: argparse.ArgumentParser, ranges: bool = True) -> N
                                 "is a setting")
 
 
-def _physics_settings(
-        args: argparse.Namespace,
-) -> tuple[dict[str, list[float]], dict[str, tuple[float, float]]]:
-    """({field: values} of the physics flags, {field: (low, high)} of their ranges)."""
-    from jaxpg.train_config import PHYSICS
+def _env_names() -> list[str]:
+    """The names `--env` takes."""
+    from jaxpg import envs
 
-    given = {name: getattr(args, name) for name in PHYSICS if getattr(args, name) is not None}
+    return list(envs.MODULES)
+
+
+def _physics_fields() -> dict[str, None]:
+    """The physics fields of every environment, CartPole's first, each once."""
+    from jaxpg import envs
+
+    return dict.fromkeys(name for module in envs.MODULES.values()
+                         for name in envs.physics(module))
+
+
+def _physics_settings(
+        args: argparse.Namespace, env_params: Any = None,
+) -> tuple[dict[str, list[float]], dict[str, tuple[float, float]]]:
+    """({field: values} of the physics flags, {field: (low, high)} of their ranges).
+
+    Raises:
+      ValueError: naming the flag of a field that the environment (`env_params`, by default
+        that of `--env`) does not have.
+    """
+    from jaxpg import envs
+
+    given = {name: getattr(args, name) for name in _physics_fields()
+             if getattr(args, name, None) is not None}
+    module = envs.module_of(envs.resolve(args.env if env_params is None else env_params))
+    physics = envs.physics(module)
+    for name in given:
+        if name not in physics:
+            raise ValueError(f"--{name.replace('_', '-')}: {module.NAME} has no field {name}; "
+                             f"its fields: {', '.join(physics)}")
     return ({name: v for name, v in given.items() if isinstance(v, list)},
             {name: v for name, v in given.items() if isinstance(v, tuple)})
 
@@ -134,8 +156,9 @@ def _add_training_args(parser: argparse.ArgumentParser) -> None:
                         help="updates (default %(default)s)")
     parser.add_argument("--episodes", type=int, default=d.episodes,
                         help="episodes per update (default %(default)s)")
-    parser.add_argument("--max-steps", type=int, default=d.max_steps,
-                        help="steps per episode (default %(default)s)")
+    parser.add_argument("--max-steps", type=int, default=None,
+                        help="steps per episode (default: the environment's time limit; 200 on "
+                        "CartPole, the book's)")
     parser.add_argument("--optimizer", default=d.optimizer,
                         help="an optax optimizer (default %(default)s)")
     parser.add_argument("--hidden", type=_int_list, default=d.hidden,
@@ -150,9 +173,10 @@ def _add_training_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--activation", default=d.activation,
                         help="hidden activation (default %(default)s)")
     parser.add_argument("--env", default=d.env,
-                        help="CartPole-v1 or CartPole-v0 (default %(default)s)")
-    parser.add_argument("--solved-return", type=float, default=d.solved_return,
-                        help="mean return that counts as solved (default %(default)s)")
+                        help=f"{', '.join(_env_names())} (default %(default)s)")
+    parser.add_argument("--solved-return", type=float, default=None,
+                        help="mean return that counts as solved (default: the environment's; "
+                        "195 on CartPole, the book's)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     parser.add_argument("--no-cache", action="store_true",
                         help="compile afresh; keep no compiled programs")
@@ -220,7 +244,7 @@ def _run_index(text: str) -> tuple[int, int]:
 
 def _load_policies(
         spec: str, run: tuple[int, int] | None = None,
-) -> tuple["Policy | Params", "nn.Module | None", str]:
+) -> tuple["Policy | Params", "TrainConfig | None", str]:
     """The policies of `--policy` (and `--run`).
 
     Args:
@@ -228,8 +252,9 @@ def _load_policies(
       run: optional: (g, s), one run of a sweep's.
 
     Returns:
-      (the basic policy, or parameters stacked `[G, S, ...]` (`[1, 1, ...]` for one run); their
-      module, or None for the basic policy; a description for the output).
+      (the basic policy, or parameters stacked `[G, S, ...]` (`[1, 1, ...]` for one run); the
+      config they were trained with (their module and environment), or None for the basic
+      policy; a description for the output).
 
     Raises:
       ValueError: `spec` names no checkpoint that loads, or `run` is given for the basic policy
@@ -250,40 +275,59 @@ def _load_policies(
         raise ValueError(f"policy: {expected}, {spec} does not exist")
     loaded = checkpoint.load(spec)
     if loaded.grid is not None and run is None:
-        seeds = cast(np.ndarray, loaded.seeds)  # (a sweep's: given with its grid)
-        return (loaded.policy_params, loaded.config.network,
+        seeds = cast("np.ndarray", loaded.seeds)  # (a sweep's: given with its grid)
+        return (loaded.policy_params, loaded.config,
                 f"the {len(loaded.grid)} x {len(seeds)} policies in {spec}")
     if run is not None:
         loaded = checkpoint.select_run(loaded, *run)
         spec = f"run {run[0]},{run[1]} of {spec}"
     return (jax.tree.map(lambda leaf: leaf[None, None], loaded.policy_params),
-            loaded.config.network, f"the policy in {spec}")
+            loaded.config, f"the policy in {spec}")
 
 
-def _one_policy(policies: "Policy | Params", network: "nn.Module | None") -> "Policy | None":
+def _one_policy(policies: "Policy | Params", config: "TrainConfig | None") -> "Policy | None":
     """The policy of `_load_policies`'s parameters of one run; None where they hold several."""
     import jax
 
     from jaxpg.policies import network_policy
 
-    if network is None:
+    if config is None:
         return policies
     if jax.tree.leaves(policies)[0].shape[:2] != (1, 1):
         return None
-    return network_policy(network, jax.tree.map(lambda leaf: leaf[0, 0], policies))
+    return network_policy(config.network, jax.tree.map(lambda leaf: leaf[0, 0], policies),
+                          num_actions=config.num_actions)
 
 
-def _load_policy(spec: str, run: tuple[int, int] | None = None) -> tuple["Policy", str]:
-    """One policy of `_load_policies`: (policy, description).
+def _load_policy(spec: str, run: tuple[int, int] | None = None
+                 ) -> tuple["Policy", "TrainConfig | None", str]:
+    """One policy of `_load_policies`: (policy, config, description).
 
     Raises:
       ValueError: as `_load_policies`, or `spec` holds a sweep's runs and `run` is None.
     """
-    policies, network, description = _load_policies(spec, run)
-    policy = _one_policy(policies, network)
+    policies, config, description = _load_policies(spec, run)
+    policy = _one_policy(policies, config)
     if policy is None:
         raise ValueError(f"run: {spec} holds a sweep's runs; choose one with --run g,s")
-    return policy, description
+    return policy, config, description
+
+
+def _policy_env(env: str | None, config: "TrainConfig | None", spec: str) -> Any:
+    """The environment to play: `--env`, else the policy's own (CartPole-v1 for basic).
+
+    Raises:
+      ValueError: naming `env` where it is another environment than the policy's.
+    """
+    from jaxpg import envs
+
+    if env is None:
+        return config.env if config else "CartPole-v1"
+    own = config.env_module if config else envs.MODULES["CartPole-v1"]
+    if envs.module_of(envs.resolve(env)) is not own:
+        raise ValueError(f"env: {spec} plays {config.env_name if config else 'CartPole'}, "
+                         f"got {env}")
+    return env
 
 
 # --- Commands --------------------------------------------------------------------------------
@@ -301,9 +345,12 @@ def cmd_train(args: argparse.Namespace) -> None:
     Raises:
       ValueError: a bad argument, before anything is written or compiled.
     """
+    import numpy as np
+
     from jaxpg import atomic_files, budget, checkpoint, plots
     from jaxpg.reinforce import first_nonfinite
     from jaxpg.sweeps import last_mean, train
+    from jaxpg.validation import check_int
 
     config = _config(args, learning_rate=args.lr, discount=args.discount,
                      entropy_coef=args.entropy_coef)
@@ -312,10 +359,8 @@ def cmd_train(args: argparse.Namespace) -> None:
         if len(given) != 1:
             raise ValueError(f"{name}: train takes one value (a sweep takes several), got {given}")
     if values:
-        from jaxpg import cartpole
-
-        config = dataclasses.replace(config, env=cartpole.make_params(
-            args.env, **{name: given[0] for name, given in values.items()}))
+        config = dataclasses.replace(config, env=config.env_params.replace(
+            **{name: given[0] for name, given in values.items()}))
     check_int("seed", args.seed, 0, 2**32)
     budget.check(config)  # before anything is written, traced or allocated
     # Held until the results are in place: a second run is refused.
@@ -357,6 +402,8 @@ def _join_processes(args: argparse.Namespace) -> bool:
       ValueError: the three flags are not given together, or one is out of range, or (process
         1 and up) nothing answers at the coordinator's address within the timeout.
     """
+    from jaxpg.validation import check_int
+
     flags = (args.coordinator, args.num_processes, args.process_id)
     if all(flag is None for flag in flags):
         return True
@@ -414,8 +461,11 @@ def cmd_sweep(args: argparse.Namespace) -> None:
       ValueError: a bad argument, before anything is written or compiled.
     """
     writes_results = _join_processes(args)  # first: it must come before JAX computes anything
+    import numpy as np
+
     from jaxpg import atomic_files, checkpoint
     from jaxpg.sweeps import check_arguments, sweep
+    from jaxpg.validation import check_int
 
     check_int("seeds", args.seeds)
     config = _config(args, learning_rate=args.lr[0], discount=args.discount[0],
@@ -493,14 +543,21 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     Raises:
       ValueError: a bad argument, before anything is written or compiled.
     """
-    from jaxpg import atomic_files, cartpole
+    import numpy as np
+
+    from jaxpg import atomic_files, envs
     from jaxpg.evaluation import evaluate, physics_label, physics_settings, robustness
 
-    values = _physics_settings(args)[0]
-    env_params = cartpole.make_params(args.env)
+    policies, config, description = _load_policies(args.policy, args.run)
+    args.env = _policy_env(args.env, config, args.policy)
+    env_params = envs.resolve(args.env)
+    if not isinstance(args.env, str):  # the checkpoint's own physics
+        args.env = f"{config.env_name if config else 'CartPole-v1'} (the policy's physics)"
+    values = _physics_settings(args, env_params)[0]
     settings = physics_settings(values, env_params)
-    policies, network, description = _load_policies(args.policy, args.run)
-    policy = _one_policy(policies, network)
+    if args.max_steps is None:
+        args.max_steps = envs.max_steps(env_params)
+    policy = _one_policy(policies, config)
     if policy is not None and len(settings) == 1 and args.out is None:
         stats = evaluate(policy, episodes=args.episodes, max_steps=args.max_steps,
                          env=env_params.replace(**settings[0]), seed=args.seed,
@@ -516,7 +573,8 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     if args.out is not None:
         atomic_files.check_out_dir(args.out)
     result = robustness(policies, values, episodes=args.episodes, max_steps=args.max_steps,
-                        seed=args.seed, network=network, env=env_params)
+                        seed=args.seed, network=config.network if config else None,
+                        env=env_params)
     print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps in "
           f"jaxpg {args.env}, median (mean) return over every policy's episodes:")
     for label, returns in zip(result.labels, result.pooled):
@@ -540,6 +598,8 @@ def _write_robustness(folder: pathlib.Path, result: "Robustness",
       values: the physics flags' values, as `evaluation.robustness` took them.
       args: the parsed arguments of `jaxpg evaluate`.
     """
+    import numpy as np
+
     from jaxpg import atomic_files, plots
 
     median = np.median(result.pooled, axis=1)
@@ -563,9 +623,9 @@ def _write_robustness(folder: pathlib.Path, result: "Robustness",
 
 
 def _median_table(
-        median: np.ndarray, settings: Sequence[Mapping[str, float]],
+        median: "np.ndarray", settings: Sequence[Mapping[str, float]],
         values: Mapping[str, Sequence[float]],
-) -> tuple[np.ndarray, list[str], list[str], str | None]:
+) -> tuple["np.ndarray", list[str], list[str], str | None]:
     """The median return per physics setting as a table, for a heatmap.
 
     The last flag's values go across, the combinations of the others down (one cell without
@@ -602,9 +662,13 @@ def cmd_render(args: argparse.Namespace) -> None:
       ValueError: a bad argument, before anything is drawn.
     """
     from jaxpg import cartpole, render
+    from jaxpg.validation import check_int
 
     render.check_animation_path(args.out, "out")
-    policy, description = _load_policy(args.policy, args.run)
+    policy, config, description = _load_policy(args.policy, args.run)
+    if config is not None and config.env_module is not cartpole:
+        raise ValueError(f"policy: {args.policy} plays {config.env_name}; render draws CartPole "
+                         f"only")
     check_int("seed", args.seed, 0, 2**32)
     env_params = cartpole.make_params(args.env)
     frames = render.render_episode(policy, seed=args.seed, env_params=env_params,
@@ -640,10 +704,13 @@ def cmd_reproduce(args: argparse.Namespace) -> None:
     Raises:
       ValueError: a bad seed, before anything compiles.
     """
+    import numpy as np
+
     from jaxpg import policies, returns
     from jaxpg.evaluation import evaluate, gymnasium_reset_states
     from jaxpg.sweeps import last_mean, train
     from jaxpg.train_config import TrainConfig
+    from jaxpg.validation import check_int
 
     check_int("seed", args.seed, 0, 2**32)
     _enable_compilation_cache(args.no_cache)
@@ -672,12 +739,14 @@ def _beside(what: str, ours: Any, book: Any) -> None:
 
 def _fmt(value: Any) -> str:
     """`value` as text; an array as a list."""
+    import numpy as np
+
     return str(np.asarray(value).tolist() if hasattr(value, "shape") else value)
 
 
 def _env_name(config: "TrainConfig") -> str:
     """The environment's name for a title."""
-    return config.env if isinstance(config.env, str) else "CartPole (custom)"
+    return config.env if isinstance(config.env, str) else f"{config.env_name} (custom)"
 
 
 # --- Parser ----------------------------------------------------------------------------------
@@ -737,10 +806,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="a directory for robustness.json, .csv and .png (median return "
                    "per physics setting)")
     p.add_argument("--episodes", type=int, default=500)
-    p.add_argument("--max-steps", type=int, default=200)
+    p.add_argument("--max-steps", type=int, help="the longest an episode runs (default: the "
+                   "environment's time limit; 200 on CartPole, the book's)")
     p.add_argument("--backend", default="jaxpg", help="jaxpg or gymnasium (default %(default)s)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--env", default="CartPole-v1", help="CartPole-v1 or CartPole-v0")
+    p.add_argument("--env", help="an environment of the policy's kind (default: the policy's own; "
+                   "CartPole-v1 for basic)")
     _add_physics_args(p, ranges=False)
     p.set_defaults(handler=cmd_evaluate)
 
@@ -829,24 +900,37 @@ def _runs_at_once(args: argparse.Namespace) -> int | None:
 def _interrupt(signum: int, frame: types.FrameType | None) -> NoReturn:
     """Ctrl-C: stops the command once, and ignores any later one while it ends.
 
+    During an import it ends the process at once (`_end`): raised there, a KeyboardInterrupt can
+    fail a compiled extension's initialisation, which then raises an ImportError or aborts.
+
     Raises:
       KeyboardInterrupt: which `schedule.train_blocks` passes on only when its workers have
         stopped.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if _importing(frame):
+        _end(130, f"{' '.join(_command)}: interrupted")
     raise KeyboardInterrupt
 
 
+def _importing(frame: types.FrameType | None) -> bool:
+    """Whether `frame` or one of its callers runs Python's import machinery."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib."):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _unraisable(unraisable: "sys.UnraisableHookArgs") -> None:  # (a name of the stubs alone)
-    """Raises again a KeyboardInterrupt that Python dropped; reports anything else as Python does.
+    """Reports an exception that Python could not raise as Python does, unless a KeyboardInterrupt.
 
     A KeyboardInterrupt raised where exceptions are only reported (a garbage collector's callback,
-    seen during tracing) is dropped; raised again elsewhere, it stops the command.
+    seen during tracing) is dropped without a word: raised again from this hook, it would be
+    reported, traceback and all. The command then ends `_GRACE` seconds after Ctrl-C
+    (`_watch_ctrl_c`).
     """
-    if issubclass(unraisable.exc_type, KeyboardInterrupt):
-        signal.signal(signal.SIGINT, _interrupt)
-        signal.raise_signal(signal.SIGINT)
-    else:
+    if not issubclass(unraisable.exc_type, KeyboardInterrupt):
         sys.__unraisablehook__(unraisable)
 
 
@@ -930,9 +1014,9 @@ def main(argv: Sequence[str] | None = None) -> NoReturn:
       SystemExit: with the command's exit status (as `run_command`). After Ctrl-C the process
         ends at once instead (`os._exit`, status 130), waiting for no thread still compiling.
     """
-    signal.signal(signal.SIGINT, _interrupt)  # first: Ctrl-C during the imports too
-    _watch_ctrl_c()
-    try:
+    try:  # (a Ctrl-C even before the handler is in place raises KeyboardInterrupt here)
+        signal.signal(signal.SIGINT, _interrupt)  # first: Ctrl-C during the imports too
+        _watch_ctrl_c()
         from jaxpg import xla_options
 
         sys.unraisablehook = _unraisable

@@ -1,5 +1,5 @@
-"""Evaluates a policy on CartPole, in jaxpg (one compiled batch) or in Gymnasium itself, and many
-policies in many physics settings at once (`robustness`).
+"""Evaluates a policy on any environment of `jaxpg.envs`, in jaxpg (one compiled batch) or in
+Gymnasium itself, and many policies in many physics settings at once (`robustness`).
 
 Both backends can start from the very same initial states: `gymnasium_reset_states` reads the
 float64 states that Gymnasium's `reset(seed=seed + i)` produces, and `evaluate(...,
@@ -20,8 +20,8 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
-from jaxpg import budget, cartpole, rng, rollout, sweeps, train_config
-from jaxpg.policies import PolicyNetwork, init_network, network_policy
+from jaxpg import budget, cartpole, envs, rng, rollout, sweeps, train_config
+from jaxpg.policies import init_network, network_policy
 from jaxpg.types import Action, Observation, Params, Policy, PRNGKey
 from jaxpg.validation import check_choice, check_int
 
@@ -29,8 +29,8 @@ BACKENDS = ("jaxpg", "gymnasium")
 # Runs that `robustness` plays side by side; chosen for speed (docs/performance.md).
 BLOCK = 16
 
-# An environment to play in: a preset name of `cartpole.PRESETS`, or physics of one's own.
-Env = str | cartpole.CartPoleParams
+# An environment to play in: a name of `envs.MODULES`, or an environment's params.
+Env = Any
 
 
 class EvalResult(NamedTuple):
@@ -43,53 +43,58 @@ class EvalResult(NamedTuple):
     returns: np.ndarray  # [episodes] float64
 
 
-def resolve_env(env: Env) -> tuple[cartpole.CartPoleParams, str]:
-    """A preset name or a `CartPoleParams`, validated, as (env_params, Gymnasium env id).
+def resolve_env(env: Env) -> tuple[Any, str]:
+    """An environment's name or params, validated, as (env_params, Gymnasium env id).
 
-    A custom `CartPoleParams` maps to `CartPole-v1`, whose settings `make_gymnasium_env` then
-    replaces. Only scalar settings can be evaluated (one environment, not a sweep over many).
+    Custom params map to their module's id (`CartPole-v1` for CartPole's), whose settings
+    `make_gymnasium_env` then replaces. Only scalar settings can be evaluated (one environment,
+    not a sweep over many).
 
     Args:
-      env: a preset name ("CartPole-v1", "CartPole-v0") or a `cartpole.CartPoleParams`.
+      env: a name of `envs.MODULES` ("CartPole-v1", "Acrobot-v1", ...) or an environment's params.
 
     Returns:
-      (env_params, env_id): the preset's or the given `CartPoleParams`, and the Gymnasium id to
-      make.
+      (env_params, env_id): the preset's or the given params, and the Gymnasium id to make.
 
     Raises:
-      ValueError: for an unknown preset, anything else than a name or a `CartPoleParams`, or
-        settings that `cartpole.check_params` refuses or that are arrays.
+      ValueError: for an unknown name, anything else than a name or params, or settings that
+        the environment's `check_params` refuses or that are arrays.
     """
-    if isinstance(env, str):
-        return cartpole.make_params(env), env
-    if not isinstance(env, cartpole.CartPoleParams):
-        raise ValueError(
-            f"env: expected a preset name ({', '.join(cartpole.PRESETS)}) or a CartPoleParams, "
-            f"got {type(env).__name__}"
-        )
-    cartpole.check_params(env)
-    if any(np.ndim(leaf) != 0 for leaf in jax.tree.leaves(env)):
-        raise ValueError("env: every CartPoleParams field must be a scalar here, not an array")
-    return env, "CartPole-v1"
+    env_params = envs.resolve(env)
+    if any(np.ndim(leaf) != 0 for leaf in jax.tree.leaves(env_params)):
+        raise ValueError(f"env: every field of {type(env_params).__name__} must be a scalar here, "
+                         f"not an array")
+    return env_params, env if isinstance(env, str) else envs.module_of(env_params).NAME
 
 
-def make_gymnasium_env(
-    env_params: cartpole.CartPoleParams, env_id: str = "CartPole-v1"
-) -> gymnasium.Env:
-    """`gymnasium.make(env_id)` with its CartPoleEnv set to `env_params`.
+def make_gymnasium_env(env_params: Any, env_id: str = "CartPole-v1") -> gymnasium.Env:
+    """`gymnasium.make(env_id)` with its environment set to `env_params`.
 
-    The TimeLimit truncates at `env_params.max_steps`. `total_mass` and `polemass_length` are
-    recomputed the way `CartPoleEnv.__init__` does, from the masses and length, never copied from
-    `env_params`: Gymnasium stays the reference even for a `CartPoleParams` that derives them
-    wrongly.
+    The TimeLimit truncates at `env_params.max_steps`. CartPole's physics may be any: its fields
+    are set on the CartPoleEnv, and `total_mass` and `polemass_length` recomputed the way
+    `CartPoleEnv.__init__` does, from the masses and length, never copied from `env_params`:
+    Gymnasium stays the reference even for a `CartPoleParams` that derives them wrongly. Another
+    environment plays Gymnasium's own physics and resets, so its params may differ from its
+    preset in `max_steps` only.
 
     Args:
       env_params: scalar physics and episode settings.
-      env_id: the Gymnasium id of a CartPole environment.
+      env_id: the Gymnasium id of the environment.
 
     Returns:
       The environment, its TimeLimit outermost, as `gymnasium.make` wraps it.
+
+    Raises:
+      ValueError: naming `env` for another environment's params that differ from its preset in
+        more than `max_steps`.
     """
+    module = envs.module_of(env_params)
+    if module is not cartpole:
+        preset = module.PRESETS[module.NAME]
+        if env_params.replace(max_steps=preset.max_steps) != preset:
+            raise ValueError(f"env: Gymnasium plays {env_id} with its own physics; the gymnasium "
+                             f"backend takes {env_id}'s preset, max_steps aside")
+        return gymnasium.make(env_id, max_episode_steps=int(env_params.max_steps))
     gym_env = gymnasium.make(
         env_id,
         max_episode_steps=int(env_params.max_steps),
@@ -106,19 +111,20 @@ def make_gymnasium_env(
     return gym_env
 
 
-def reset_gymnasium(
-    gym_env: gymnasium.Env, seed: int, env_params: cartpole.CartPoleParams
-) -> np.ndarray:
-    """`gym_env.reset(seed=seed)` within the reset bounds of `env_params`.
+def reset_gymnasium(gym_env: gymnasium.Env, seed: int, env_params: Any) -> np.ndarray:
+    """`gym_env.reset(seed=seed)` within the reset bounds of `env_params` (CartPole's; another
+    environment resets as Gymnasium's preset does, `make_gymnasium_env`).
 
     Args:
       gym_env: an environment of `make_gymnasium_env`.
       seed: the seed of the reset.
-      env_params: whose `reset_low` and `reset_high` bound the initial values.
+      env_params: whose `reset_low` and `reset_high` bound CartPole's initial values.
 
     Returns:
-      The first observation, float32 `[4]`.
+      The first observation, float32 `[K]`.
     """
+    if envs.module_of(env_params) is not cartpole:
+        return gym_env.reset(seed=seed)[0]
     bounds = {"low": float(env_params.reset_low), "high": float(env_params.reset_high)}
     obs, _ = gym_env.reset(seed=seed, options=bounds)
     return obs
@@ -135,10 +141,14 @@ def gymnasium_reset_states(episodes: int, seed: int = 0, env: Env = "CartPole-v1
     Returns:
       `[episodes, 4]` float64 (x, x_dot, theta, theta_dot), as `env.unwrapped.state` holds them;
       `cartpole.CartPoleState.from_array` turns them into jaxpg's initial states.
+
+    Raises:
+      ValueError: naming the argument out of range, or `env` for another environment than
+        CartPole.
     """
     check_int("episodes", episodes)
     check_int("seed", seed, 0, 2**32)
-    env_params, env_id = resolve_env(env)
+    env_params, env_id = _cartpole_only(env, "env")
     gym_env = make_gymnasium_env(env_params, env_id)
     states = []
     for episode in range(episodes):
@@ -162,18 +172,22 @@ def evaluate(
     `jax.random.PRNGKey(seed)`. With backend "gymnasium", episode i runs in `gymnasium.make(env)`
     from `reset(seed=seed + i)`, one step at a time, as the book does; the policy's uniform at step
     t of episode i is drawn from `fold_in(fold_in(PRNGKey(seed), i), t)`. An episode also ends when
-    the environment's own time limit (`max_steps` of its CartPoleParams) truncates it.
+    the environment's own time limit (`max_steps` of its params) truncates it.
 
     Args:
-      policy: `(obs [E, 4], u [E]) -> action [E]` with u uniform in [0, 1), e.g.
-        `policies.basic_policy`. A policy that is a pytree of arrays (`policies.network_policy`)
+      policy: `(obs [E, K], u [E]) -> action [E]` with u uniform in [0, 1), e.g.
+        `policies.basic_policy` (CartPole's) or `policies.network_policy(network, params,
+        num_actions=...)`. A policy that is a pytree of arrays (`policies.network_policy`)
         is an argument of the compiled program: a new one of the same shapes compiles nothing.
       episodes: E, a positive integer.
       max_steps: the longest an episode may run, a positive integer.
-      env: a preset name ("CartPole-v1", "CartPole-v0") or a `cartpole.CartPoleParams`.
+      env: a name of `envs.MODULES` ("CartPole-v1", "Acrobot-v1", ...) or an environment's
+        params (the gymnasium backend plays another environment than CartPole in its preset's
+        physics, `make_gymnasium_env`).
       seed: a non-negative integer.
       backend: "jaxpg" or "gymnasium".
-      init_states: optional `[E, 4]` initial states (jaxpg only), e.g. `gymnasium_reset_states`.
+      init_states: optional `[E, 4]` initial states of CartPole (jaxpg only), e.g.
+        `gymnasium_reset_states`.
 
     Returns:
       `EvalResult` with the returns `[E]`.
@@ -181,8 +195,8 @@ def evaluate(
     Raises:
       ValueError: one line naming the argument, for a policy that is not callable, an argument out
         of range, episodes that need more memory than the machine's (`budget.evaluation_bytes`),
-        `init_states` of another shape than `[E, 4]` or with backend "gymnasium", or a policy
-        that plays an action other than 0 or 1.
+        `init_states` of another shape than `[E, 4]` or with backend "gymnasium" or another
+        environment, or a policy that plays an action the environment does not have.
     """
     if not callable(policy):
         raise ValueError(f"policy: must be a callable (obs, u) -> action, got {policy!r}")
@@ -201,11 +215,11 @@ def evaluate(
             )
         returns = _gymnasium_returns(policy, episodes, max_steps, env_params, env_id, seed)
     else:
-        init_state = None if init_states is None else _init_state(init_states, episodes)
+        init_state = None if init_states is None else _init_state(init_states, episodes, env)
         returns, invalid = _jaxpg_returns(
             jax.random.PRNGKey(seed), env_params, init_state, _as_argument(policy), episodes,
             max_steps)
-        rollout.check_played_actions(invalid)
+        rollout.check_played_actions(invalid, env_params)
     return summarize(returns)
 
 
@@ -225,8 +239,17 @@ def summarize(returns: npt.ArrayLike) -> EvalResult:
     )
 
 
-def _init_state(init_states: npt.ArrayLike, episodes: int) -> cartpole.CartPoleState:
+def _cartpole_only(env: Env, name: str) -> tuple[cartpole.CartPoleParams, str]:
+    """`resolve_env(env)`, or a ValueError naming `name` for another environment than CartPole."""
+    env_params, env_id = resolve_env(env)
+    if envs.module_of(env_params) is not cartpole:
+        raise ValueError(f"{name}: for CartPole only, got {env_id}")
+    return env_params, env_id
+
+
+def _init_state(init_states: npt.ArrayLike, episodes: int, env: Env) -> cartpole.CartPoleState:
     """`init_states` `[episodes, 4]` as a `CartPoleState`, in jaxpg's float dtype."""
+    _cartpole_only(env, "init_states")
     shape = np.shape(init_states)
     if shape != (episodes, 4):
         raise ValueError(f"init_states: expected shape ({episodes}, 4), got {shape}")
@@ -250,9 +273,7 @@ def _is_function(policy: object) -> TypeGuard[Policy]:
     return callable(policy) and jax.tree_util.treedef_is_leaf(jax.tree.structure(policy))
 
 
-def reset_states(
-    key: PRNGKey, episodes: int, env_params: cartpole.CartPoleParams
-) -> cartpole.CartPoleState:
+def reset_states(key: PRNGKey, episodes: int, env_params: Any) -> Any:
     """The initial states of `evaluate`'s (and `robustness`'s) episodes from `key`.
 
     Args:
@@ -261,7 +282,8 @@ def reset_states(
       env_params: the physics, whose reset bounds the states are drawn within.
 
     Returns:
-      A `CartPoleState` with `[E]` leaves: the states that `rollout.rollout(key, ...)` draws.
+      The environment's state with `[E]` leaves: the states that `rollout.rollout(key, ...)`
+      draws.
     """
     key_reset, _ = rng.split(key)
     return rollout.reset_batch(key_reset, episodes, env_params)[1]
@@ -270,8 +292,8 @@ def reset_states(
 @functools.partial(jax.jit, static_argnames=("episodes", "max_steps"))
 def _jaxpg_returns(
     key: PRNGKey,
-    env_params: cartpole.CartPoleParams,
-    init_state: cartpole.CartPoleState | None,
+    env_params: Any,
+    init_state: Any,
     policy: Policy,
     episodes: int,
     max_steps: int,
@@ -285,7 +307,7 @@ def _jaxpg_returns(
 
 @jax.jit
 def _act(policy: Policy, obs: Observation, key: PRNGKey, episode: int, t: int) -> Action:
-    """The policy's action for one observation `[4]`, with the uniform of step t of `episode`."""
+    """The policy's action for one observation `[K]`, with the uniform of step t of `episode`."""
     key = jax.random.fold_in(jax.random.fold_in(key, episode), t)
     return policy(obs[None], jax.random.uniform(key, (1,)))[0]
 
@@ -294,19 +316,22 @@ def _gymnasium_returns(
     policy: Policy,
     episodes: int,
     max_steps: int,
-    env_params: cartpole.CartPoleParams,
+    env_params: Any,
     env_id: str,
     seed: int,
 ) -> np.ndarray:
     """Returns `[episodes]` of episodes played in Gymnasium, one Python step at a time."""
     gym_env = make_gymnasium_env(env_params, env_id)
+    discrete = envs.is_discrete(envs.module_of(env_params))
     key = jax.random.PRNGKey(seed)
     policy = _as_argument(policy)
     returns = np.zeros(episodes)
     for episode in range(episodes):
         obs = reset_gymnasium(gym_env, seed + episode, env_params)
         for t in range(max_steps):
-            action = int(_act(policy, obs, key, episode, t))
+            chosen = np.asarray(_act(policy, obs, key, episode, t))
+            # Gymnasium's continuous action is `[1]` float32.
+            action = int(chosen) if discrete else chosen.astype(np.float32).reshape(1)
             obs, reward, terminated, truncated, _ = gym_env.step(action)
             returns[episode] += reward
             if terminated or truncated:
@@ -364,16 +389,15 @@ def physics_label(setting: Mapping[str, float], none: str = "default physics") -
     return ", ".join(f"{name}={value:g}" for name, value in setting.items()) or none
 
 
-def physics_settings(
-    env_grid: sweeps.Grid, env_params: cartpole.CartPoleParams
-) -> list[dict[str, float]]:
+def physics_settings(env_grid: sweeps.Grid, env_params: Any) -> list[dict[str, float]]:
     """The physics settings of `env_grid`, validated against `env_params`, as a list of P dicts.
 
     Args:
-      env_grid: None (`env_params` alone: one empty setting); a dict of `CartPoleParams` field to
-        values, whose product the settings are, in `sweeps.expand_grid`'s order (the last field
-        varying fastest); or a list of dicts, the settings themselves.
-      env_params: the `CartPoleParams` that every setting modifies.
+      env_grid: None (`env_params` alone: one empty setting); a dict of the environment's
+        physical fields (`envs.physics`) to values, whose product the settings are, in
+        `sweeps.expand_grid`'s order (the last field varying fastest); or a list of dicts, the
+        settings themselves.
+      env_params: the environment's params that every setting modifies.
 
     Returns:
       P dicts {field: value} of the physical fields that the grid names (one empty dict for None).
@@ -383,15 +407,16 @@ def physics_settings(
         value or setting, or a value that is not physical (a mass, length or tau at or below 0,
         anything not finite).
     """
-    unknown = _fields(env_grid) - set(train_config.PHYSICS)
+    physics = envs.physics(envs.module_of(env_params))
+    unknown = _fields(env_grid) - set(physics)
     if unknown:
         raise ValueError(f"env_grid: unknown field(s) {', '.join(sorted(map(str, unknown)))}; "
-                         f"allowed: {', '.join(train_config.PHYSICS)}")
+                         f"allowed: {', '.join(physics)}")
     try:
         settings = sweeps.expand_grid(train_config.TrainConfig(env=env_params), env_grid)
     except ValueError as error:  # the grid's own messages, for the argument of this name
         raise ValueError(re.sub("^grid:", "env_grid:", str(error))) from None
-    return [{name: value for name, value in setting.items() if name in train_config.PHYSICS}
+    return [{name: value for name, value in setting.items() if name in physics}
             for setting in settings]
 
 
@@ -411,7 +436,7 @@ def robustness(
     max_steps: int = 200,
     seed: int = 0,
     network: nn.Module | None = None,
-    env: Env = "CartPole-v1",
+    env: Env = None,
 ) -> Robustness:
     """Plays every policy in every physics setting, as one compiled program.
 
@@ -423,16 +448,17 @@ def robustness(
 
     Args:
       policies: a `SweepResult`, or policy parameters stacked `[G, S, ...]` (every leaf) of
-        `network`; or a policy function `(obs [..., 4], u [...]) -> action [...]` of any batch
+        `network`; or a policy function `(obs [..., K], u [...]) -> action [...]` of any batch
         shape, such as `policies.basic_policy` (G = S = 1).
-      env_grid: the physics settings (`physics_settings`): a dict of `CartPoleParams` field to
-        values (their product), a list of dicts, or None for `env` itself.
+      env_grid: the physics settings (`physics_settings`): a dict of the environment's fields
+        to values (their product), a list of dicts, or None for `env` itself.
       episodes: E, a positive integer.
       max_steps: the longest an episode may run, a positive integer.
       seed: a non-negative integer; every cell plays the episodes of `PRNGKey(seed)`.
       network: the policy module of the parameters (`TrainConfig.network`); by default a
-        `SweepResult`'s own, else the default network, `policies.PolicyNetwork()`.
-      env: a preset name or a `CartPoleParams`: the physics that the settings modify.
+        `SweepResult`'s own, else the environment's default network (`TrainConfig.network`).
+      env: a name of `envs.MODULES` or an environment's params: the physics that the settings
+        modify; by default a `SweepResult`'s environment, else CartPole-v1.
 
     Returns:
       `Robustness` with returns `[G, S, P, E]` and the P settings.
@@ -446,12 +472,14 @@ def robustness(
     check_int("episodes", episodes)
     check_int("max_steps", max_steps)
     check_int("seed", seed, 0, 2**32)
+    config = policies.config if isinstance(policies, sweeps.SweepResult) else None
+    if env is None:
+        env = config.env if config else "CartPole-v1"
     env_params, _ = resolve_env(env)
     settings = physics_settings(env_grid, env_params)
-    if network is None and isinstance(policies, sweeps.SweepResult) and policies.config:
-        network = policies.config.network
-    network = PolicyNetwork() if network is None else network
-    function, policy_params = _split_policies(policies, network)
+    if network is None:
+        network = (config or train_config.TrainConfig(env=env_params)).network
+    function, policy_params = _split_policies(policies, network, env_params)
     grid_shape = (1, 1) if function else jax.tree.leaves(policy_params)[0].shape[:2]
     runs = math.prod(grid_shape) * len(settings)
     # A block of runs plays at once; the returns of every run are kept.
@@ -460,25 +488,27 @@ def robustness(
                       f"steps, {BLOCK} runs at once of {runs}")
     physics = {name: np.asarray([getattr(env_params.replace(**setting), name)
                                  for setting in settings], jnp.result_type(float))
-               for name in train_config.PHYSICS}
+               for name in envs.physics(envs.module_of(env_params))}
     returns, invalid = _robustness_returns(
         jax.random.PRNGKey(seed),
         jax.tree.map(lambda leaf: leaf.reshape(-1, *leaf.shape[2:]), policy_params), physics,
         env_params, None if function else network, function, episodes, max_steps)
-    rollout.check_played_actions(invalid)
+    rollout.check_played_actions(invalid, env_params)
     return Robustness(np.asarray(returns, np.float64).reshape(*grid_shape, *returns.shape[1:]),
                       settings)
 
 
 def _split_policies(
-    policies: sweeps.SweepResult | Params | Policy, network: nn.Module
+    policies: sweeps.SweepResult | Params | Policy, network: nn.Module, env_params: Any
 ) -> tuple[Policy | None, Params | None]:
-    """(a policy function, None), or (None, the parameters `[G, S, ...]` of `network`), checked."""
+    """(a policy function, None), or (None, the parameters `[G, S, ...]` of `network` for the
+    environment's observations), checked."""
     if isinstance(policies, sweeps.SweepResult):
         policies = policies.policy_params
     if _is_function(policies):
         return policies, None
-    want = jax.eval_shape(lambda key: init_network(key, network),
+    obs_size = envs.module_of(env_params).OBS_SIZE
+    want = jax.eval_shape(lambda key: init_network(key, network, obs_size),
                           jax.ShapeDtypeStruct((2,), jnp.uint32))
     shapes = [np.shape(leaf) for leaf in jax.tree.leaves(policies)]
     # jaxlib's stubs leave PyTreeDef unresolved, so mypy cannot compare two of them.
@@ -498,7 +528,7 @@ def _robustness_returns(
     key: PRNGKey,
     policy_params: Params | None,
     physics: dict[str, np.ndarray],
-    env_params: cartpole.CartPoleParams,
+    env_params: Any,
     network: nn.Module | None,
     function: Policy | None,
     episodes: int,
@@ -507,7 +537,8 @@ def _robustness_returns(
     """The returns `[N, P, E]` of N policies in P settings, and whether any action was invalid.
 
     The policies are parameters `[N, ...]` of `network`, or one `function`; the settings are
-    `physics`, `[P]` values of each physical field. An invalid action is one other than 0 or 1.
+    `physics`, `[P]` values of each physical field. An invalid action is one the environment
+    does not have.
     """
     num_policies = 1 if function else jax.tree.leaves(policy_params)[0].shape[0]
     num_settings = len(next(iter(physics.values())))
@@ -515,8 +546,9 @@ def _robustness_returns(
     num_blocks = -(-num_runs // BLOCK)
     # Run r is policy r // P in setting r % P; the last block is padded with copies of the last run.
     runs = np.minimum(np.arange(num_blocks * BLOCK), num_runs - 1).reshape(num_blocks, BLOCK)
-    init_state = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf[:, None], (episodes, BLOCK)),
-                              reset_states(key, episodes, env_params))
+    init_state = jax.tree.map(
+        lambda leaf: jnp.broadcast_to(leaf[:, None], (episodes, BLOCK, *leaf.shape[1:])),
+        reset_states(key, episodes, env_params))
 
     def play_block(
         block: tuple[Params, dict[str, jax.Array]],
@@ -525,7 +557,8 @@ def _robustness_returns(
         block_params, block_physics = block  # [BLOCK, ...] and [BLOCK] leaves
         act = function or network_policy(  # without a function, a network
             cast(nn.Module, network),
-            jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, -1), block_params), runs=True)
+            jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, -1), block_params), runs=True,
+            num_actions=getattr(envs.module_of(env_params), "NUM_ACTIONS", None))
 
         def policy(obs: Observation, u: jax.Array) -> Action:
             """`act` with the uniforms `[E]` of `evaluate`, the same for every run."""

@@ -10,7 +10,18 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from jaxpg import TrainConfig, checkpoint, cli, distributions, envs, policies, sweep, train
+from jaxpg import (
+    TrainConfig,
+    checkpoint,
+    cli,
+    distributions,
+    envs,
+    evaluate,
+    policies,
+    robustness,
+    sweep,
+    train,
+)
 
 # One iteration's worth of a short episode per environment: enough to reach every piece.
 _SMALL = {"iterations": 3, "episodes": 4, "max_steps": 40, "hidden": (8,)}
@@ -137,3 +148,56 @@ def test_the_command_trains_another_environment_and_refuses_fields_it_lacks(tmp_
     assert status == 2 and len(lines) == 1
     assert "--masscart: Acrobot-v1 has no field masscart" in lines[0]
     assert not (tmp_path / "other").exists()
+
+
+def test_the_command_evaluates_a_policy_in_its_own_environment_and_refuses_another(
+        tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    config = TrainConfig(env="Acrobot-v1", **_SMALL)
+    checkpoint.save(tmp_path / "acrobot/", train(config, seed=0).policy_params, config)
+    capsys.readouterr()
+    assert cli.run_command(["evaluate", "--policy", "acrobot", "--episodes", "3",
+                            "--link-mass-2", "1,2", "--out", "table"]) == 0
+    assert "in jaxpg Acrobot-v1" in capsys.readouterr().out
+    assert (tmp_path / "table" / "robustness.png").is_file()
+    for command, message in ((["evaluate", "--env", "CartPole-v1"],
+                              "env: acrobot plays Acrobot-v1, got CartPole-v1"),
+                             (["render", "--out", "x.gif"],
+                              "policy: acrobot plays Acrobot-v1; render draws CartPole only")):
+        status = cli.run_command([*command, "--policy", "acrobot"])
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert status == 2 and len(lines) == 1 and message in lines[0], lines
+
+
+@pytest.mark.parametrize("env", ["Acrobot-v1", "MountainCarContinuous-v0"])
+def test_robustness_plays_each_cell_as_evaluate_does(env):
+    config = TrainConfig(env=env, **_SMALL)
+    result = sweep(config, seeds=[0, 1], show_progress=False)
+    field = config.physics[-1]
+    values = [getattr(config.env_params, field), 1.25 * getattr(config.env_params, field)]
+    table = robustness(result, {field: values}, episodes=5, max_steps=30, seed=3)
+    policy = policies.network_policy(config.network,
+                                     jax.tree.map(lambda leaf: leaf[0, 1], result.policy_params),
+                                     num_actions=config.num_actions)
+    alone = evaluate(policy, episodes=5, max_steps=30, seed=3,
+                     env=config.env_params.replace(**{field: values[1]}))
+    np.testing.assert_array_equal(table.returns[0, 1, 1], alone.returns)
+
+
+def test_a_trained_policy_scores_in_gymnasium_what_it_scores_in_jaxpg():
+    """Pendulum's returns vary continuously: the two backends' means agree within 4 standard
+    errors of their difference (other initial states and uniforms, the same policy)."""
+    config = TrainConfig(env="Pendulum-v1", loss="baseline", hidden=(16,), iterations=20)
+    trained = train(config, seed=0, show_progress=False)
+    policy = policies.network_policy(config.network, trained.policy_params, num_actions=None)
+    ours = evaluate(policy, episodes=60, max_steps=200, env="Pendulum-v1", seed=1)
+    theirs = evaluate(policy, episodes=60, max_steps=200, env="Pendulum-v1", seed=1,
+                      backend="gymnasium")
+    error = math.hypot(ours.std, theirs.std) / math.sqrt(60)
+    assert abs(ours.mean - theirs.mean) < 4 * error
+
+
+def test_gymnasium_plays_another_environment_in_its_own_physics_only():
+    with pytest.raises(ValueError, match="^env: Gymnasium plays Acrobot-v1 with its own physics"):
+        evaluate(lambda obs, u: jnp.zeros(obs.shape[:-1], jnp.int32), episodes=2,
+                 env=envs.acrobot.V1.replace(link_mass_2=2.0), backend="gymnasium")
