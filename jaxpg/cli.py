@@ -400,7 +400,9 @@ def _join_processes(args: argparse.Namespace) -> bool:
 
     Raises:
       ValueError: the three flags are not given together, or one is out of range, or (process
-        1 and up) nothing answers at the coordinator's address within the timeout.
+        1 and up) nothing answers at the coordinator's address within the timeout. Process 0,
+        whose wait for the others happens inside JAX, ends with status 2 and one line when they
+        have not all joined within the timeout (JAX itself would abort with a C++ dump).
     """
     from jaxpg.validation import check_int
 
@@ -422,10 +424,23 @@ def _join_processes(args: argparse.Namespace) -> bool:
         _reach(host.strip("[]"), int(port), args.coordinator_timeout)
     import jax
 
+    # JAX's own timeout, later than ours, never comes: a thread ends the process in one line.
+    watcher = threading.Timer(args.coordinator_timeout, _give_up_joining, (args,))
+    watcher.daemon = True
+    watcher.start()
     jax.distributed.initialize(coordinator_address=args.coordinator,
                                num_processes=args.num_processes, process_id=args.process_id,
-                               initialization_timeout=args.coordinator_timeout)
+                               initialization_timeout=args.coordinator_timeout + 30)
+    watcher.cancel()
     return args.process_id == 0
+
+
+def _give_up_joining(args: argparse.Namespace) -> NoReturn:
+    """Ends the process with status 2 and one line: the processes did not all join in time."""
+    print(f"{PROG} {args.command}: error: coordinator: the {args.num_processes} processes did not "
+          f"all join at {args.coordinator} within {args.coordinator_timeout} s "
+          f"(--coordinator-timeout)", file=sys.stderr, flush=True)
+    os._exit(2)
 
 
 def _reach(host: str, port: int, timeout: int) -> None:
@@ -473,7 +488,7 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     grid = {"learning_rate": args.lr, "discount": args.discount, "entropy_coef": args.entropy_coef,
             **_physics_settings(args)[0]}
     # Before anything is written, traced or allocated.
-    check_arguments(config, range(args.seeds), grid, args.memory_budget)
+    check_arguments(config, range(args.seeds), grid, args.memory_budget, args.eval_episodes)
     # After the checks: they import scipy, which is slow to import.
     from jaxpg import report, results
     out = (atomic_files.claim if writes_results else atomic_files.check_out_dir)(args.out)

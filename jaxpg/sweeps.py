@@ -328,7 +328,7 @@ def sweep(
         or `init_params` not shaped as the policy's parameters, before anything is compiled;
         for a `memory_budget` below one run's need, after compiling.
     """
-    seeds, settings = check_arguments(config, seeds, grid, memory_budget)
+    seeds, settings = check_arguments(config, seeds, grid, memory_budget, eval_episodes)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
     check_choice("eval_physics", eval_physics, EVAL_PHYSICS)
     if init_params is not None:

@@ -1,6 +1,7 @@
 """Work that cannot fit in memory or compile, and a coordinator that does not answer, end in one
 line with exit status 2, before anything compiles or hangs."""
 
+import socket
 import subprocess
 import sys
 
@@ -53,4 +54,25 @@ def test_render_refuses_before_anything_compiles():
     long_env = cartpole.V1.replace(max_steps=HUGE)
     with xla_compiles() as compiled, pytest.raises(ValueError, match="^max_steps: drawing "):
         render_episode(policies.basic_policy, env_params=long_env, max_steps=10**6)
+    assert not compiled
+
+
+def test_process_0_whose_peers_never_join_ends_in_one_line(tmp_path):
+    """JAX's own wait would end in a C++ abort; the command's ends at --coordinator-timeout."""
+    with socket.socket() as probe:  # a port nothing listens on once closed
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    finished = _run("sweep", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
+                    "--process-id", "0", "--coordinator-timeout", "2", "--out", str(tmp_path))
+    assert finished.returncode == 2 and finished.stderr.count("\n") == 1, finished.stderr
+    assert finished.stderr.startswith(
+        f"jaxpg sweep: error: coordinator: the 2 processes did not all join at 127.0.0.1:{port} "
+        f"within 2 s")
+
+
+def test_held_out_episodes_beyond_memory_are_refused_before_training():
+    from jaxpg import TrainConfig, sweep
+
+    with xla_compiles() as compiled, pytest.raises(ValueError, match="^eval_episodes: playing "):
+        sweep(TrainConfig(), seeds=range(1024), eval_episodes=2**20)
     assert not compiled
