@@ -74,5 +74,5 @@ def test_held_out_episodes_beyond_memory_are_refused_before_training():
     from jaxpg import TrainConfig, sweep
 
     with xla_compiles() as compiled, pytest.raises(ValueError, match="^eval_episodes: playing "):
-        sweep(TrainConfig(), seeds=range(1024), eval_episodes=2**20)
+        sweep(TrainConfig(), seeds=range(1024), eval_episodes=2**20 - 1)
     assert not compiled
