@@ -160,13 +160,10 @@ def test_the_command_evaluates_a_policy_in_its_own_environment_and_refuses_anoth
                             "--link-mass-2", "1,2", "--out", "table"]) == 0
     assert "in jaxpg Acrobot-v1" in capsys.readouterr().out
     assert (tmp_path / "table" / "robustness.png").is_file()
-    for command, message in ((["evaluate", "--env", "CartPole-v1"],
-                              "env: acrobot plays Acrobot-v1, got CartPole-v1"),
-                             (["render", "--out", "x.gif"],
-                              "policy: acrobot plays Acrobot-v1; render draws CartPole only")):
-        status = cli.run_command([*command, "--policy", "acrobot"])
-        lines = capsys.readouterr().err.strip().splitlines()
-        assert status == 2 and len(lines) == 1 and message in lines[0], lines
+    status = cli.run_command(["evaluate", "--env", "CartPole-v1", "--policy", "acrobot"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(lines) == 1
+    assert "env: acrobot plays Acrobot-v1, got CartPole-v1" in lines[0]
 
 
 @pytest.mark.parametrize("env", ["Acrobot-v1", "MountainCarContinuous-v0"])
