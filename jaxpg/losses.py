@@ -14,7 +14,9 @@ A loss is a function `loss(params, apply_fn, batch, hyper) -> (loss, metrics)` o
 - `loss` is a scalar to minimise; `metrics` a dict of scalars, kept per iteration
   (`Metrics.extra`).
 
-The trainer adds `-entropy_coef * masked_mean(entropy(dist), alive)` to any loss. It evaluates
+The trainer adds `-entropy_coef * masked_mean(entropy(dist), alive)` to any loss. A loss takes
+no gradient through `jnp.max` of the network's outputs (see `jaxpg.runwise`: shift a softmax by a
+`jax.lax.stop_gradient` maximum, or use `jax.nn.log_softmax`). It evaluates
 the loss for many runs at once (`jaxpg.runwise`), with its sums in a fixed order.
 """
 

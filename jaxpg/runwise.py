@@ -9,6 +9,12 @@ after another in a loop, a short one as a chain of additions or by halving (`sum
 So a run rounds the same alone (no run axis) as beside any number of others, for any policy, loss
 or optimizer written in JAX.
 
+One hazard, of comparisons: compiled, XLA may compute an array once for a maximum and again,
+rounded otherwise (a multiply-add fused or not), for an `==` against that maximum, so the two can
+disagree. `jnp.max`'s derivative counts the entries equal to the maximum and divides by the
+count: 0 / 0 there. A maximum that only shifts values (a softmax's) takes no gradient
+(`jax.lax.stop_gradient`, as `jax.nn.log_softmax` and `distributions.Categorical` do).
+
 Each operation keeps its meaning: an operation without a rule here is evaluated by `jax.vmap`
 over the run axis (still exact, not necessarily in a fixed order). `fn` is traced once per shape
 of its arguments; differentiate inside it (`jax.grad` in `fn`), so that the backward pass's sums
