@@ -1,27 +1,128 @@
-"""jaxpg: policy-gradient reinforcement learning on CartPole, exact and fast, in JAX."""
+"""jaxpg: policy-gradient reinforcement learning on CartPole, exact and fast, in JAX.
+
+`import jaxpg` imports neither JAX nor Gymnasium: each public name is imported on first use
+(`jaxpg.train`, `from jaxpg import cartpole`), so the `jaxpg` command handles Ctrl-C from its
+first moment. `jaxpg/CartPole-v1` and `jaxpg/CartPole-v0` are registered with Gymnasium as it is
+imported (at once where it already is); `gymnasium.make` imports their adapters (`jaxpg.gym`).
+"""
+
+import importlib
+import importlib.util
+import sys
+from collections.abc import Sequence
+from types import ModuleType  # (not `types`: jaxpg.types would replace it)
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
-from jaxpg import cartpole, gym, losses
-from jaxpg.evaluation import EvalResult, evaluate, robustness
-from jaxpg.executables import keep_programs
-from jaxpg.iteration import Metrics, TrainResult
-from jaxpg.policies import basic_policy
-from jaxpg.returns import discount_and_normalize_rewards, discount_rewards
-from jaxpg.sweeps import SweepResult, sweep, train
-from jaxpg.train_config import Hyperparams, TrainConfig
+if TYPE_CHECKING:
+    from importlib.machinery import ModuleSpec
 
-gym.register()
+    from jaxpg import cartpole, losses
+    from jaxpg import gym as gym  # (an attribute, left out of `__all__`)
+    from jaxpg.evaluation import EvalResult, evaluate, robustness
+    from jaxpg.executables import keep_programs
+    from jaxpg.iteration import Metrics, TrainResult
+    from jaxpg.policies import basic_policy
+    from jaxpg.results import save_sweep
+    from jaxpg.returns import discount_and_normalize_rewards, discount_rewards
+    from jaxpg.sweeps import SweepResult, sweep, train
+    from jaxpg.train_config import Hyperparams, TrainConfig
+
+_MODULES = ("cartpole", "gym", "losses")
+_DEFINED_IN = {  # public name: the module of jaxpg's that defines it
+    "EvalResult": "evaluation",
+    "evaluate": "evaluation",
+    "robustness": "evaluation",
+    "keep_programs": "executables",
+    "Metrics": "iteration",
+    "TrainResult": "iteration",
+    "basic_policy": "policies",
+    "save_sweep": "results",  # (it imports scipy and matplotlib)
+    "discount_and_normalize_rewards": "returns",
+    "discount_rewards": "returns",
+    "SweepResult": "sweeps",
+    "sweep": "sweeps",
+    "train": "sweeps",
+    "Hyperparams": "train_config",
+    "TrainConfig": "train_config",
+}
 
 
 def __getattr__(name: str) -> object:
-    """`save_sweep` (`jaxpg.results`), imported on first use: it imports scipy and matplotlib,
-    which `import jaxpg` does without."""
-    if name == "save_sweep":
-        from jaxpg.results import save_sweep
+    """A public name of jaxpg's or one of its modules, imported on first use."""
+    if name in _MODULES:
+        return importlib.import_module(f"{__name__}.{name}")
+    if name not in _DEFINED_IN:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_DEFINED_IN[name]}"), name)
+    globals()[name] = value  # later uses find it without this function
+    return value
 
-        return save_sweep
-    raise AttributeError(f"module 'jaxpg' has no attribute {name!r}")
+
+def __dir__() -> list[str]:
+    """The module's names, those not imported yet included."""
+    return sorted({*globals(), *_MODULES, *_DEFINED_IN})
+
+
+# --- Gymnasium's ids, registered without importing Gymnasium ---------------------------------
+
+
+def _register_ids(gymnasium: ModuleType) -> None:
+    """Registers `jaxpg/CartPole-v1` and `jaxpg/CartPole-v0` with `gymnasium` (idempotent).
+
+    Each has the time limit and reward threshold of Gymnasium's id of the same name, and
+    `jaxpg.gym`'s adapters as entry points, which `gymnasium.make` and `make_vec` import (JAX
+    with them) when first called.
+
+    Args:
+      gymnasium: the module `gymnasium`, imported.
+    """
+    for name in ("CartPole-v1", "CartPole-v0"):
+        env_id = f"jaxpg/{name}"
+        if env_id in gymnasium.registry:
+            continue
+        theirs = gymnasium.spec(name)
+        gymnasium.register(
+            id=env_id,
+            entry_point="jaxpg.gym:CartPoleEnv",
+            vector_entry_point="jaxpg.gym:CartPoleVectorEnv",
+            max_episode_steps=theirs.max_episode_steps,
+            reward_threshold=theirs.reward_threshold,
+        )
+
+
+class _RegisterOnImport:
+    """A finder of `sys.meta_path` that calls `_register_ids` once `gymnasium` is imported.
+
+    The first time `gymnasium` is imported, it leaves `sys.meta_path`, has the other finders
+    find the module, and has its loader call `_register_ids` once the module has run.
+    """
+
+    def find_spec(self, name: str, path: Sequence[str] | None,
+                  target: ModuleType | None = None) -> "ModuleSpec | None":
+        """The other finders' spec of `gymnasium`, its loader registering; None for others."""
+        if name != "gymnasium":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None:
+            return spec
+        loader = spec.loader
+
+        def exec_module(module: ModuleType) -> None:
+            del loader.exec_module  # (this function, set on the instance below)
+            type(loader).exec_module(loader, module)
+            _register_ids(module)
+
+        setattr(loader, "exec_module", exec_module)  # noqa: B010 (a method, set on an instance)
+        return spec
+
+
+if "gymnasium" in sys.modules:
+    _register_ids(sys.modules["gymnasium"])
+else:
+    sys.meta_path.insert(0, _RegisterOnImport())
 
 
 __all__ = [

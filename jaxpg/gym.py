@@ -27,7 +27,7 @@ from gymnasium.envs.classic_control import utils
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from jaxpg import cartpole, render
+from jaxpg import _register_ids, cartpole, render
 from jaxpg.cartpole import CartPoleParams
 from jaxpg.types import HostArray
 from jaxpg.validation import check_int
@@ -401,16 +401,11 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
 
 
 def register() -> None:
-    """Registers `jaxpg/CartPole-v1` and `jaxpg/CartPole-v0` with Gymnasium (idempotent)."""
-    for name, env_params in cartpole.PRESETS.items():
-        env_id = f"jaxpg/{name}"
-        if env_id in gymnasium.registry:
-            continue
-        gymnasium.register(
-            id=env_id,
-            entry_point="jaxpg.gym:CartPoleEnv",
-            vector_entry_point="jaxpg.gym:CartPoleVectorEnv",
-            max_episode_steps=int(env_params.max_steps),
-            reward_threshold=cartpole.REWARD_THRESHOLDS[name],
-            kwargs={"env_params": env_params},
-        )
+    """Registers `jaxpg/CartPole-v1` and `jaxpg/CartPole-v0` with Gymnasium (idempotent).
+
+    `import jaxpg` has registered them already, as `gymnasium` was imported: each has the time
+    limit and reward threshold of Gymnasium's id of the same name and the adapters above as entry
+    points, with CartPole-v1's `env_params` by default (the time limit is the `TimeLimit`
+    wrapper's, or `make_vec`'s `max_episode_steps`).
+    """
+    _register_ids(gymnasium)
