@@ -158,12 +158,13 @@ class TrainConfig:
 
     @property
     def built_in(self) -> bool:
-        """Whether the policy, loss and optimizer are jaxpg's or optax's, named.
+        """Whether the policy, loss and optimizer are jaxpg's or optax's, named, and the
+        environment jaxpg's.
 
         Then nothing of the user's code decides the training program, which may be kept on disk.
         """
         return self.policy is None and isinstance(self.loss, str) and isinstance(
-            self.optimizer, str)
+            self.optimizer, str) and envs.is_built_in(self.env_module)
 
     @property
     def hand_gradient(self) -> bool:

@@ -12,7 +12,8 @@ Every module has the same interface, as `jaxpg.cartpole`:
   `step(state, action, env_params) -> (obs, state, reward, terminated, truncated)`.
 
 `MODULES` maps each Gymnasium id to its module, CartPole's two included; the trainer finds an
-environment's module from its params (`module_of`).
+environment's module from its params (`module_of`). A gymnax environment, or a user's own with
+its interface, joins them through `from_gymnax` (`jaxpg.envs.gymnax_style`).
 """
 
 import dataclasses
@@ -20,7 +21,8 @@ from types import ModuleType
 from typing import Any
 
 from jaxpg import cartpole
-from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
+from jaxpg.envs import acrobot, continuous_mountain_car, gymnax_style, mountain_car, pendulum
+from jaxpg.envs.gymnax_style import from_gymnax
 
 MODULES: dict[str, ModuleType] = {
     **{name: cartpole for name in cartpole.PRESETS},
@@ -34,12 +36,15 @@ _SOLVED_CARTPOLE = 195.0
 _BOOK_STEPS = 200
 
 
-def module_of(env_params: Any) -> ModuleType:
-    """The environment module whose params `env_params` are.
+def module_of(env_params: Any) -> Any:
+    """The environment module whose params `env_params` are (a `gymnax_style.Module` for
+    `GymnaxParams`).
 
     Raises:
       ValueError: naming `env` for anything else than one environment's params.
     """
+    if isinstance(env_params, gymnax_style.GymnaxParams):
+        return gymnax_style.module(env_params.env)
     for module in dict.fromkeys(MODULES.values()):
         if isinstance(env_params, _params_type(module)):
             return module
@@ -47,7 +52,7 @@ def module_of(env_params: Any) -> ModuleType:
                      f"(such as cartpole.CartPoleParams), got {type(env_params).__name__}")
 
 
-def _params_type(module: ModuleType) -> type:
+def _params_type(module: Any) -> type:
     """The params dataclass of an environment module."""
     return type(next(iter(module.PRESETS.values())))
 
@@ -73,11 +78,14 @@ def resolve(env: Any) -> Any:
     return env
 
 
-def physics(module: ModuleType) -> tuple[str, ...]:
+def physics(module: Any) -> tuple[str, ...]:
     """The fields of an environment's params that sweeps and randomisation may vary.
 
-    Every number but the reset bounds and `max_steps`; static fields change the program.
+    Every number but the reset bounds and `max_steps`; static fields change the program. A
+    module may name them (`PHYSICS`: none of a gymnax-style environment's).
     """
+    if hasattr(module, "PHYSICS"):
+        return tuple(module.PHYSICS)
     return tuple(field.name for field in dataclasses.fields(_params_type(module))
                  if field.metadata.get("pytree_node", True)
                  and not field.name.startswith("reset") and field.name != "max_steps")
@@ -92,7 +100,12 @@ def program_params(env_params: Any) -> Any:
     return next(iter(module_of(env_params).PRESETS.values())).replace(**static)
 
 
-def is_discrete(module: ModuleType) -> bool:
+def is_built_in(module: Any) -> bool:
+    """Whether the module is one of jaxpg's own (`MODULES`), whose programs its config decides."""
+    return any(module is built_in for built_in in MODULES.values())
+
+
+def is_discrete(module: Any) -> bool:
     """Whether the environment's actions are integers (`NUM_ACTIONS`), not one float."""
     return hasattr(module, "NUM_ACTIONS")
 
@@ -105,14 +118,17 @@ def max_steps(env_params: Any) -> int:
 
 def solved_return(env_params: Any) -> float:
     """The mean return that counts as solved by default: Gymnasium's reward threshold (195, the
-    book's, for CartPole)."""
+    book's, for CartPole; a gymnax-style environment's: its task's, or 0 for one jaxpg does not
+    know)."""
     module = module_of(env_params)
     if module is cartpole:
         return _SOLVED_CARTPOLE
-    return module.REWARD_THRESHOLDS[module.NAME] if hasattr(module, "REWARD_THRESHOLDS") else (
-        _SOLVED[module.NAME])
+    if not is_built_in(module) and module.NAME in MODULES:  # gymnax's version of a task
+        return solved_return(MODULES[module.NAME].PRESETS[module.NAME])
+    return float(getattr(module, "REWARD_THRESHOLDS", _SOLVED)[module.NAME])
 
 
-__all__ = ["MODULES", "acrobot", "continuous_mountain_car", "is_discrete", "max_steps",
+__all__ = ["MODULES", "acrobot", "continuous_mountain_car", "from_gymnax", "is_built_in",
+           "is_discrete", "max_steps",
            "module_of", "mountain_car", "pendulum", "physics", "program_params", "resolve",
            "solved_return"]
