@@ -192,8 +192,7 @@ def _grid_shape(runs: SweepRuns | None) -> tuple[int, ...]:
 
 def _jaxpg_version() -> str:
     """The version of jaxpg that writes the file."""
-    # Imported here: jaxpg/__init__.py imports the modules that define the API before the version.
-    import jaxpg
+    import jaxpg  # (the package of this module: imported by now)
 
     return jaxpg.__version__
 
