@@ -84,18 +84,22 @@ def needed_bytes(config: TrainConfig, runs: int = 1) -> int:
     blocks = runs if alone else -(-runs // schedule.CPU_BLOCK)
     networks = [config.network, losses.critic(config.loss)]
     units = sum(sum(net.hidden) for net in networks if isinstance(net, policies.PolicyNetwork))
-    parameters = sum(_parameters(net) for net in networks)
-    steps = config.max_steps * episodes * (STEP_FLOATS + UNIT_FLOATS * units)
+    obs_size = config.env_module.OBS_SIZE
+    parameters = sum(_parameters(net, obs_size) for net in networks)
+    # Fitted on CartPole's 4 observations; a step records (and the policy reads) each one more.
+    extra = max(0, obs_size - 4)
+    steps = config.max_steps * episodes * (STEP_FLOATS + extra + UNIT_FLOATS * units)
     kept = PARAMETER_COPIES * parameters + METRIC_FLOATS * config.iterations
     calls = -(-config.iterations // ITERATIONS_PER_CALL)
     return (at_once * steps + runs * kept) * itemsize + blocks * calls * CALL_BYTES
 
 
-def _parameters(network: nn.Module | None) -> int:
-    """How many parameters a `policies.PolicyNetwork` has; 0 for any other module or None."""
+def _parameters(network: nn.Module | None, obs_size: int) -> int:
+    """How many parameters a `policies.PolicyNetwork` of `obs_size` inputs has; 0 for any other
+    module or None."""
     if not isinstance(network, policies.PolicyNetwork):
         return 0
-    sizes = [4, *network.hidden, 1]
+    sizes = [obs_size, *network.hidden, network.outputs]
     return sum((inputs + 1) * outputs for inputs, outputs in zip(sizes[:-1], sizes[1:]))
 
 
