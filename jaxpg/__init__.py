@@ -68,27 +68,36 @@ def __dir__() -> list[str]:
 # --- Gymnasium's ids, registered without importing Gymnasium ---------------------------------
 
 
-def _register_ids(gymnasium: ModuleType) -> None:
-    """Registers `jaxpg/CartPole-v1` and `jaxpg/CartPole-v0` with `gymnasium` (idempotent).
+# The classic-control tasks of `jaxpg.envs.adapters`, registered beside CartPole's.
+_OTHER_IDS = ("Acrobot-v1", "MountainCar-v0", "MountainCarContinuous-v0", "Pendulum-v1")
 
-    Each has the time limit and reward threshold of Gymnasium's id of the same name, and
-    `jaxpg.gym`'s adapters as entry points, which `gymnasium.make` and `make_vec` import (JAX
-    with them) when first called.
+
+def _register_ids(gymnasium: ModuleType) -> None:
+    """Registers `jaxpg/CartPole-v1`, `jaxpg/CartPole-v0` and the other classic-control tasks
+    (`jaxpg/Acrobot-v1`, ...) with `gymnasium` (idempotent).
+
+    Each has the time limit and reward threshold of Gymnasium's id of the same name, and jaxpg's
+    adapters as entry points (`jaxpg.gym`'s for CartPole, `jaxpg.envs.adapters.ClassicControlEnv`
+    for the others, with the task's name as `env_params`), which `gymnasium.make` and `make_vec`
+    import (JAX with them) when first called.
 
     Args:
       gymnasium: the module `gymnasium`, imported.
     """
-    for name in ("CartPole-v1", "CartPole-v0"):
+    for name in ("CartPole-v1", "CartPole-v0", *_OTHER_IDS):
         env_id = f"jaxpg/{name}"
         if env_id in gymnasium.registry:
             continue
         theirs = gymnasium.spec(name)
+        cartpole = name.startswith("CartPole")
         gymnasium.register(
             id=env_id,
-            entry_point="jaxpg.gym:CartPoleEnv",
-            vector_entry_point="jaxpg.gym:CartPoleVectorEnv",
+            entry_point="jaxpg.gym:CartPoleEnv" if cartpole else
+            "jaxpg.envs.adapters:ClassicControlEnv",
+            vector_entry_point="jaxpg.gym:CartPoleVectorEnv" if cartpole else None,
             max_episode_steps=theirs.max_episode_steps,
             reward_threshold=theirs.reward_threshold,
+            kwargs={} if cartpole else {"env_params": name},
         )
 
 

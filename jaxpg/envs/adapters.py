@@ -40,7 +40,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.envs.classic_control import utils
 
-from jaxpg import envs
+from jaxpg import _register_ids, envs
 from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
 from jaxpg.gym import _host_params
 from jaxpg.types import HostArray
@@ -367,18 +367,9 @@ def register() -> None:
     """Registers `jaxpg/Acrobot-v1`, `jaxpg/MountainCar-v0`, `jaxpg/MountainCarContinuous-v0`
     and `jaxpg/Pendulum-v1` with Gymnasium (idempotent).
 
-    Each has `ClassicControlEnv` as entry point with the preset's name as `env_params`, the
-    preset's `max_steps` as time limit and the module's reward threshold (none for Pendulum), as
-    Gymnasium's id of the same name; `gymnasium.make(id, env_params=...)` sets other physics.
+    `import jaxpg` has registered them already, as `gymnasium` was imported: each has
+    `ClassicControlEnv` as entry point with the task's name as `env_params`, and the time limit
+    and reward threshold of Gymnasium's id of the same name; `gymnasium.make(id, env_params=...)`
+    sets other physics.
     """
-    for module in _DYNAMICS:
-        env_id = f"jaxpg/{module.NAME}"
-        if env_id in gymnasium.registry:
-            continue
-        gymnasium.register(
-            id=env_id,
-            entry_point="jaxpg.envs.adapters:ClassicControlEnv",
-            max_episode_steps=int(module.PRESETS[module.NAME].max_steps),
-            reward_threshold=getattr(module, "REWARD_THRESHOLDS", {}).get(module.NAME),
-            kwargs={"env_params": module.NAME},
-        )
+    _register_ids(gymnasium)
