@@ -339,7 +339,7 @@ class NetworkPolicy:
 
     def __call__(self, obs: Observation, u: jax.Array) -> Action:
         """Actions `[E]` (`[E, R]`) for observations `[E, K]` (`[E, R, K]`) and uniforms `u`."""
-        if isinstance(self.network, PolicyNetwork) and self.num_actions == 2:
+        if isinstance(self.network, PolicyNetwork) and self.network.outputs == 1:
             dist = forward(self.policy_params, obs, self.network.activation)
         else:
             # Any other module's sums in a fixed order (`runwise`), alone as beside other runs,

@@ -33,7 +33,8 @@ class TrainConfig:
       iterations: optimizer steps, each on `episodes` fresh episodes of at most `max_steps` steps.
       episodes: episodes played per optimizer step.
       max_steps: the most steps of an episode; None (the default) is the book's 200 on
-        CartPole, the environment's time limit (`max_steps` of its params) elsewhere.
+        CartPole, the environment's time limit (`max_steps` of its params) elsewhere, kept as
+        that number (`dataclasses.replace` of `env` keeps it too).
       hidden: the hidden layer sizes of the default policy network (`policies.PolicyNetwork`),
         used where `policy` is None; `()` is a linear policy.
       activation: the default network's activation, a name of `policies.ACTIVATIONS`.

@@ -101,3 +101,13 @@ def test_parameters_flatten_into_one_vector_and_back(hidden):
 def test_bad_network_settings(hidden, activation, match):
     with pytest.raises(ValueError, match=match):
         policies.check_network(hidden, activation)
+
+
+def test_a_default_network_of_two_logits_on_cartpole_acts_on_their_difference():
+    network = policies.PolicyNetwork((4,), "elu", outputs=2)
+    params = policies.init_network(jax.random.PRNGKey(0), network)
+    obs = jax.random.normal(jax.random.PRNGKey(1), (1000, 4))
+    u = jax.random.uniform(jax.random.PRNGKey(2), (1000,))
+    logits = network.apply(params, obs)
+    want = (u > jax.nn.sigmoid(logits[:, 0] - logits[:, 1])).astype(jnp.int32)
+    np.testing.assert_array_equal(policies.network_policy(network, params)(obs, u), want)
