@@ -668,7 +668,8 @@ def _median_table(
 
 
 def cmd_render(args: argparse.Namespace) -> None:
-    """`jaxpg render`: draws one episode of a policy as an animation (GIF or MP4).
+    """`jaxpg render`: draws one episode of a policy in its environment as an animation (GIF or
+    MP4).
 
     Args:
       args: the parsed arguments of `build_parser`.
@@ -676,18 +677,16 @@ def cmd_render(args: argparse.Namespace) -> None:
     Raises:
       ValueError: a bad argument, before anything is drawn.
     """
-    from jaxpg import cartpole, render
+    from jaxpg import envs, render
     from jaxpg.validation import check_int
 
     render.check_animation_path(args.out, "out")
     policy, config, description = _load_policy(args.policy, args.run)
-    if config is not None and config.env_module is not cartpole:
-        raise ValueError(f"policy: {args.policy} plays {config.env_name}; render draws CartPole "
-                         f"only")
     check_int("seed", args.seed, 0, 2**32)
-    env_params = cartpole.make_params(args.env)
+    env_params = envs.resolve(_policy_env(args.env, config, args.policy))
+    max_steps = envs.max_steps(env_params) if args.max_steps is None else args.max_steps
     frames = render.render_episode(policy, seed=args.seed, env_params=env_params,
-                                   max_steps=args.max_steps)
+                                   max_steps=max_steps)
     render.save_animation(frames, args.out)
     print(f"wrote {args.out}: {description}, {len(frames) - 1} steps")
 
@@ -837,8 +836,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="cartpole.gif",
                    help="a .gif or .mp4 path (default %(default)s)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-steps", type=int, default=200)
-    p.add_argument("--env", default="CartPole-v1", help="CartPole-v1 or CartPole-v0")
+    p.add_argument("--max-steps", type=int, help="the most steps drawn (default: the "
+                   "environment's time limit; 200 on CartPole, the book's)")
+    p.add_argument("--env", help="an environment of the policy's kind (default: the policy's own; "
+                   "CartPole-v1 for basic)")
     p.set_defaults(handler=cmd_render)
 
     p = commands.add_parser("compare", help="compare the settings of sweep folders, with "
