@@ -50,7 +50,7 @@ USABLE_SHARE = 0.8  # of the machine's memory: the process and the system need t
 EVAL_STEP_FLOATS = 10
 # Per step of a drawn episode's full record (`rollout.rollout`): 78 bytes in float32, 19.5 floats.
 RECORD_FLOATS = 20
-FRAME_BYTES = 400 * 600 * 3  # one uint8 RGB frame of `render.render_frame`
+FRAME_BYTES = 500 * 600 * 3  # a uint8 RGB frame of `render.render_frame` (600x400, 500x500)
 # Units per layer of the default network that XLA's CPU compiler builds: `jaxpg train --iterations
 # 1` takes 14 s with hidden 1000, 48 s with 2000 and 76 s with 4000; 10000 overflows the compiler's
 # stack after about 80 s (2-core CPU, jaxlib 0.10).
