@@ -469,10 +469,12 @@ def write(sweeps: Sequence[Source], out: str | os.PathLike[str], confidence: flo
       The comparison, as `compare` returns it.
 
     Raises:
-      ValueError: as `compare`, and for an `out` that is not a folder that can be written.
+      ValueError: as `compare`, and for an `out` that is not a folder that can be written or
+        that is (or holds) a folder compared.
     """
     if within is None:
         out = atomic_files.check_out_dir(out)
+        _check_not_compared(out, sweeps)
     try:
         comparison = compare(sweeps, confidence, reps, seed)
     except ValueError as error:
@@ -485,6 +487,19 @@ def write(sweeps: Sequence[Source], out: str | os.PathLike[str], confidence: flo
           else atomic_files.staged(out)) as stage:
         _write_comparison(comparison, stage)
     return comparison
+
+
+def _check_not_compared(out: str | os.PathLike[str], sweeps: Sequence[Source]) -> None:
+    """Raises a ValueError naming `out` where it is, or holds, a folder being compared: writing
+    `out` replaces it whole."""
+    target = pathlib.Path(out).resolve()
+    for source in sweeps:
+        if isinstance(source, str | os.PathLike):
+            folder = pathlib.Path(source).resolve()
+            if folder == target or target in folder.parents:
+                raise ValueError(f"out: {os.fspath(out)} holds {os.fspath(source)}, a folder "
+                                 f"compared, which writing the report would replace; choose "
+                                 f"another folder")
 
 
 def _renamed(comparison: dict[str, Any], folder: str, name: str) -> dict[str, Any]:

@@ -372,3 +372,12 @@ def test_save_sweep_refuses_a_result_without_config_and_writes_nothing(result, t
     with pytest.raises(ValueError, match="result: a SweepResult without its config"):
         save_sweep(result._replace(config=None), tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_report_into_a_folder_compared_is_refused_and_the_folder_kept(sweeps, tmp_path, capsys):
+    folder = _copy(sweeps, tmp_path)
+    before = sorted((path.name, path.read_bytes()) for path in folder.iterdir())
+    assert cli.run_command(["compare", str(sweeps / "a"), str(folder), "--out", str(folder)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "a folder compared, which writing the report" in lines[0], lines
+    assert sorted((path.name, path.read_bytes()) for path in folder.iterdir()) == before
