@@ -355,7 +355,7 @@ _HUGE_BUDGET = "9" * 400 + "T"  # a float of it is infinite
     (["train", "--max-steps", "2147483647"], "memory: "),
     (["train", "--iterations", "1000000000"], "memory: "),
     (["train", "--hidden", "100000000"], "hidden: at most 4000 units per layer"),
-    (["train", "--hidden", "3000,3000,3000,3000,3000,3000,3000,3000"], "memory: "),
+    (["train", "--hidden", ",".join(["4000"] * 64)], "memory: "),  # about 30 GiB
     (["sweep", "--seeds", "4294967296"], "seeds: training 4294967296 seeds x 1 settings"),
     (["sweep", "--seeds", "8589934592"], "seeds: must be a non-empty sequence"),
     (["sweep", "--memory-budget", _HUGE_BUDGET], "memory_budget: "),
