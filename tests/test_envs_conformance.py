@@ -480,13 +480,14 @@ def test_a_sweep_vmaps_over_physics(name):
 
 
 def test_every_module_has_the_interface():
-    for name, module in MODULES.items():
-        assert module.NAME == name and name in module.PRESETS and module.OBS_SIZE >= 2
+    for name, module in MODULES.items():  # CartPole's two presets share its module
+        assert name in module.PRESETS and module.NAME in module.PRESETS and module.OBS_SIZE >= 2
         discrete = hasattr(module, "NUM_ACTIONS")
         assert discrete != hasattr(module, "ACTION_LOW") == hasattr(module, "ACTION_HIGH")
         for function in ("make_params", "check_params", "reset", "step", "observe"):
             assert callable(getattr(module, function)), (name, function)
-        assert module.make_params() == module.PRESETS[name]
+        assert module.make_params(name) == module.PRESETS[name]
+        assert module.make_params() == module.PRESETS[module.NAME]
 
 
 ACROBOT_STATE = acrobot.AcrobotState.from_array(np.zeros(4))

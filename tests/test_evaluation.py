@@ -241,8 +241,9 @@ NO_ACTION = "policy: must return one integer action per observation, shaped "
 @pytest.mark.parametrize("policy, message", [
     (_always(2), PLAYED_AS_0),  # found by the program, raised after the rollout
     (_always(-1), PLAYED_AS_0),
-    (_always(0.5), NO_ACTION + "(10,) (0 pushes left, 1 right), got float32 (10,)"),  # as traced
-    (lambda obs, u: obs, NO_ACTION + "(10,) (0 pushes left, 1 right), got float32 (10, 4)"),
+    (_always(0.5), NO_ACTION + "(10,) (on CartPole 0 pushes left, 1 right), got float32 (10,)"),
+    (lambda obs, u: obs,
+     NO_ACTION + "(10,) (on CartPole 0 pushes left, 1 right), got float32 (10, 4)"),
 ])
 def test_actions_other_than_0_or_1_are_refused_not_played_as_0(policy, message):
     with pytest.raises(ValueError) as error:
