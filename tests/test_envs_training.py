@@ -25,11 +25,11 @@ from jaxpg import (
 
 # One iteration's worth of a short episode per environment: enough to reach every piece.
 _SMALL = {"iterations": 3, "episodes": 4, "max_steps": 40, "hidden": (8,)}
-_OTHERS = ["Acrobot-v1", "MountainCar-v0", "Pendulum-v1", "MountainCarContinuous-v0"]
 
 
-@pytest.mark.parametrize("env", _OTHERS)
-@pytest.mark.parametrize("loss", ["reinforce", "baseline"])
+@pytest.mark.parametrize("env, loss", [("Acrobot-v1", "reinforce"), ("MountainCar-v0", "baseline"),
+                                       ("Pendulum-v1", "reward-to-go"),
+                                       ("MountainCarContinuous-v0", "baseline")])
 def test_a_seed_trains_alone_as_in_a_sweep(env, loss):
     config = TrainConfig(env=env, loss=loss, entropy_coef=0.01, **_SMALL)
     alone = train(config, seed=5, show_progress=False)
@@ -42,7 +42,7 @@ def test_a_seed_trains_alone_as_in_a_sweep(env, loss):
     assert np.all(np.isfinite(alone.metrics.grad_norm))
 
 
-@pytest.mark.parametrize("env", ["Acrobot-v1", "Pendulum-v1"])
+@pytest.mark.parametrize("env", ["Pendulum-v1"])
 def test_ppo_trains_alone_as_in_a_sweep_to_rounding(env):
     """Several updates per batch: equal to rounding only, as on CartPole (README)."""
     config = TrainConfig(env=env, loss="ppo", epochs=2, minibatches=2, **_SMALL)
@@ -166,7 +166,7 @@ def test_the_command_evaluates_a_policy_in_its_own_environment_and_refuses_anoth
     assert "env: acrobot plays Acrobot-v1, got CartPole-v1" in lines[0]
 
 
-@pytest.mark.parametrize("env", ["Acrobot-v1", "MountainCarContinuous-v0"])
+@pytest.mark.parametrize("env", ["MountainCarContinuous-v0"])
 def test_robustness_plays_each_cell_as_evaluate_does(env):
     config = TrainConfig(env=env, **_SMALL)
     result = sweep(config, seeds=[0, 1], show_progress=False)
