@@ -270,13 +270,16 @@ def torque_noise(key: PRNGKey, noise_max: float, dtype: jnp.dtype
 Values = tuple[jax.Array, ...]  # (theta1, theta2, dtheta1, dtheta2) or their derivatives
 
 
-def dsdt(s: Values, torque: jax.Array, env_params: AcrobotParams) -> Values:
+def dsdt(s: Values, torque: Any, env_params: Any,
+         sin_cos: Callable[[Any], tuple[Any, Any]] = sincos) -> Values:
     """Gymnasium's `_dsdt`: the time derivative of (theta1, theta2, dtheta1, dtheta2).
 
     Args:
       s: (theta1, theta2, dtheta1, dtheta2), `[...]` each.
       torque: the torque `[...]` at the joint between the links.
       env_params: `AcrobotParams`.
+      sin_cos: `x -> (sin x, cos x)`: jaxpg's `sincos` by default; NumPy's for the Gymnasium
+        adapter's float64 step (`jaxpg.envs.adapters`), which then rounds as Gymnasium's.
 
     Returns:
       (dtheta1, dtheta2, ddtheta1, ddtheta2), `[...]` each.
@@ -285,14 +288,14 @@ def dsdt(s: Values, torque: jax.Array, env_params: AcrobotParams) -> Values:
     m1, m2, l1 = p.link_mass_1, p.link_mass_2, p.link_length_1
     lc1, lc2, i1, i2, g = p.link_com_pos_1, p.link_com_pos_2, p.link_moi, p.link_moi, p.gravity
     theta1, theta2, dtheta1, dtheta2 = s
-    sin2, cos2 = sincos(theta2)
+    sin2, cos2 = sin_cos(theta2)
     d1 = m1 * lc1**2 + m2 * (l1**2 + lc2**2 + 2 * l1 * lc2 * cos2) + i1 + i2
     d2 = m2 * (lc2**2 + l1 * lc2 * cos2) + i2
-    phi2 = m2 * lc2 * g * _cos(theta1 + theta2 - math.pi / 2.0)
+    phi2 = m2 * lc2 * g * sin_cos(theta1 + theta2 - math.pi / 2.0)[1]
     phi1 = (
         -m2 * l1 * lc2 * dtheta2**2 * sin2
         - 2 * m2 * l1 * lc2 * dtheta2 * dtheta1 * sin2
-        + (m1 * lc1 + m2 * l1) * g * _cos(theta1 - math.pi / 2)
+        + (m1 * lc1 + m2 * l1) * g * sin_cos(theta1 - math.pi / 2)[1]
         + phi2
     )
     if p.book_or_nips == "nips":

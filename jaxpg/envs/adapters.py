@@ -14,8 +14,8 @@ Gymnasium's order, on values of the types Gymnasium gives them (the action's typ
 that NumPy rounds each result as it does for Gymnasium:
 
 - Acrobot: float32 after a reset, float64 after a step. `acrobot.rk4` integrates numpy float64
-  scalars by `_dsdt` (`acrobot.dsdt`'s arithmetic with NumPy's sine and cosine, which XLA's
-  differ from in the last bits); the angles are wrapped by Gymnasium's loop and the velocities
+  scalars by `acrobot.dsdt` with NumPy's sine and cosine (`_numpy_sin_cos`; XLA's differ in
+  the last bits); the angles are wrapped by Gymnasium's loop and the velocities
   bounded by Python's `min` and `max`, as Gymnasium's `wrap` and `bound`.
 - MountainCar: float64, the slope by `math.cos`, as Gymnasium's.
 - MountainCarContinuous: float32 after each step (rounded after termination is decided); a
@@ -101,30 +101,9 @@ def _acrobot_initial(np_random: np.random.Generator, p: Any, options: dict[str, 
     return _uniform_in_bounds(np_random, p, options, (4,)).astype(np.float32)
 
 
-def _dsdt(s: tuple[Any, ...], torque: Any, p: Any) -> tuple[Any, ...]:
-    """`acrobot.dsdt` of numpy float64 scalars, by NumPy's sine and cosine, as Gymnasium's
-    `_dsdt`: (dtheta1, dtheta2, ddtheta1, ddtheta2)."""
-    m1, m2, l1 = p.link_mass_1, p.link_mass_2, p.link_length_1
-    lc1, lc2, i1, i2, g = p.link_com_pos_1, p.link_com_pos_2, p.link_moi, p.link_moi, p.gravity
-    theta1, theta2, dtheta1, dtheta2 = s
-    sin2, cos2 = np.sin(theta2), np.cos(theta2)
-    d1 = m1 * lc1**2 + m2 * (l1**2 + lc2**2 + 2 * l1 * lc2 * cos2) + i1 + i2
-    d2 = m2 * (lc2**2 + l1 * lc2 * cos2) + i2
-    phi2 = m2 * lc2 * g * np.cos(theta1 + theta2 - math.pi / 2.0)
-    phi1 = (
-        -m2 * l1 * lc2 * dtheta2**2 * sin2
-        - 2 * m2 * l1 * lc2 * dtheta2 * dtheta1 * sin2
-        + (m1 * lc1 + m2 * l1) * g * np.cos(theta1 - math.pi / 2)
-        + phi2
-    )
-    if p.book_or_nips == "nips":
-        ddtheta2 = (torque + d2 / d1 * phi1 - phi2) / (m2 * lc2**2 + i2 - d2**2 / d1)
-    else:
-        ddtheta2 = (
-            torque + d2 / d1 * phi1 - m2 * l1 * lc2 * dtheta1**2 * sin2 - phi2
-        ) / (m2 * lc2**2 + i2 - d2**2 / d1)
-    ddtheta1 = -(d2 * ddtheta2 + phi1) / d1
-    return dtheta1, dtheta2, ddtheta1, ddtheta2
+def _numpy_sin_cos(x: Any) -> tuple[Any, Any]:
+    """(sin x, cos x) by NumPy, as Gymnasium's `_dsdt` computes them."""
+    return np.sin(x), np.cos(x)
 
 
 _WRAP_TURNS = 1_000  # turns `_wrap_angle` takes one at a time, as Gymnasium's `wrap`
@@ -151,7 +130,8 @@ def _acrobot_step(state: HostArray, action: Action, p: Any, np_random: np.random
     if p.torque_noise_max > 0:
         torque += np_random.uniform(-p.torque_noise_max, p.torque_noise_max)
     values = tuple(np.asarray(state, np.float64))
-    theta1, theta2, dtheta1, dtheta2 = acrobot.rk4(lambda s: _dsdt(s, torque, p), values, p.dt)
+    theta1, theta2, dtheta1, dtheta2 = acrobot.rk4(
+        lambda s: acrobot.dsdt(s, torque, p, _numpy_sin_cos), values, p.dt)
     state = np.array([_wrap_angle(theta1), _wrap_angle(theta2),
                       _clip(dtheta1, -p.max_vel_1, p.max_vel_1),
                       _clip(dtheta2, -p.max_vel_2, p.max_vel_2)])
