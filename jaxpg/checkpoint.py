@@ -25,9 +25,13 @@ The content's fields:
                     float32 or float64 (a diverged run's hold NaNs)
     metrics         nil, or a map of `Metrics` fields to float32 or float64 arrays (`[I]`
                     per-iteration statistics), `extra` a map of the loss's own metrics
+    critic_params   nil, or the flax state dict of the loss's critic (`losses.critic`: the
+                    "baseline" and "ppo" losses' value network), stored as `policy_params`;
+                    absent from files written before it was added, which load without one
     runs            a sweep's only: {"grid": its G settings (maps of field to number), "seeds":
-                    its S seeds, in [0, 2**32)}; every array of `policy_params` and `metrics` then
-                    holds every run's, `[G, S, ...]`, run (g, s) being seed s under setting g
+                    its S seeds, in [0, 2**32)}; every array of `policy_params`, `metrics` and
+                    `critic_params` then holds every run's, `[G, S, ...]`, run (g, s) being seed s
+                    under setting g
 
 Versions 1 (one run) and 2 (a sweep's runs, with `runs`), written by earlier jaxpg, hold the
 content's fields in the file's map itself, beside `format` and `format_version`, with no checksum;
@@ -90,6 +94,9 @@ class Checkpoint(NamedTuple):
     # A sweep's G settings {field: value}; its arrays are then `[G, S, ...]`.
     grid: list[dict[str, float]] | None = None
     seeds: np.ndarray | None = None  # a sweep's S seeds, int64
+    # The loss's critic's parameters (`losses.critic`), as jax arrays shaped as `policy_params`'s;
+    # None for a loss without one, or a file saved without them.
+    critic_params: dict | None = None
 
 
 class SweepRuns(TypedDict):
@@ -108,6 +115,7 @@ def save(
     config: train_config.TrainConfig,
     metrics: iteration.Metrics | None = None,
     runs: SweepRuns | None = None,
+    critic_params: Params | None = None,
 ) -> pathlib.Path:
     """Saves a policy with its `TrainConfig` (and optionally its metrics) as one file, atomically.
 
@@ -119,27 +127,32 @@ def save(
       config: the `TrainConfig` that describes the network.
       metrics: optional `Metrics` of the run.
       runs: for a sweep's runs (`save_sweep`), `{"grid": G settings, "seeds": S seeds}`;
-        `policy_params` and `metrics` then hold every run's, `[G, S, ...]`.
+        `policy_params`, `metrics` and `critic_params` then hold every run's, `[G, S, ...]`.
+      critic_params: optional parameters of the loss's critic (`TrainResult.critic_params`),
+        which `load` gives back to warm-start it (`train(..., init_critic_params=...)`).
 
     Returns:
       The `pathlib.Path` written.
 
     Raises:
       ValueError: for a `config` that is no `TrainConfig`, `metrics` that are no `Metrics`,
-        parameters of other shapes than `config`'s network's, or a config field that cannot be
-        saved.
+        parameters of other shapes than `config`'s network's (or its loss's critic's), critic
+        parameters for a loss without a critic, or a config field that cannot be saved.
     """
     if not isinstance(config, train_config.TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     if metrics is not None and not isinstance(metrics, iteration.Metrics):
         raise ValueError(f"metrics: expected a Metrics or None, got {type(metrics).__name__}")
     _check_params_match(policy_params, config, "policy_params", _grid_shape(runs))
+    if critic_params is not None:
+        _check_params_match(critic_params, config, "critic_params", _grid_shape(runs))
     path = _target(path, FILENAME if runs is None else SWEEP_FILENAME)
     content = serialization.msgpack_serialize({
         "jaxpg_version": _jaxpg_version(),
         "config": config_to_dict(config),
-        "policy_params": jax.tree.map(np.asarray, serialization.to_state_dict(policy_params)),
+        "policy_params": _state_dict(policy_params),
         "metrics": None if metrics is None else jax.tree.map(np.asarray, metrics._asdict()),
+        "critic_params": None if critic_params is None else _state_dict(critic_params),
         **({} if runs is None else {"runs": runs}),
     })
     payload = {"format": FORMAT, "format_version": FORMAT_VERSION,
@@ -147,6 +160,11 @@ def save(
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_files.atomic_write(path, serialization.msgpack_serialize(payload))
     return path
+
+
+def _state_dict(params: Params) -> dict[str, Any]:
+    """A network's parameters as flax's state dict of numpy arrays, as the file holds them."""
+    return jax.tree.map(np.asarray, serialization.to_state_dict(params))
 
 
 def _target(path: str | os.PathLike[str], name: str) -> pathlib.Path:
@@ -163,7 +181,8 @@ def save_sweep(
     path: str | pathlib.Path, swept: "sweeps.SweepResult",
     config: train_config.TrainConfig | None = None,
 ) -> pathlib.Path:
-    """Saves every run of a sweep (`SweepResult`) in one file, `[G, S, ...]` (`save`'s `runs`).
+    """Saves every run of a sweep (`SweepResult`) in one file, `[G, S, ...]` (`save`'s `runs`),
+    with its critic's parameters where its loss has a critic.
 
     Args:
       path: the file to write, or an existing directory to write `policies.msgpack` in.
@@ -182,7 +201,7 @@ def save_sweep(
     runs = SweepRuns(grid=[{name: float(value) for name, value in setting.items()}
                            for setting in swept.grid],
                      seeds=[int(seed) for seed in swept.seeds])
-    return save(path, swept.policy_params, config, swept.metrics, runs)
+    return save(path, swept.policy_params, config, swept.metrics, runs, swept.critic_params)
 
 
 def _grid_shape(runs: SweepRuns | None) -> tuple[int, ...]:
@@ -315,20 +334,25 @@ def config_from_dict(
 
 
 def _check_params_match(
-    policy_params: Params, config: train_config.TrainConfig, where: str, lead: tuple[int, ...] = ()
+    params: Params, config: train_config.TrainConfig, where: str, lead: tuple[int, ...] = ()
 ) -> None:
-    """Raises a ValueError unless `policy_params` has the shapes of `config`'s policy's own.
+    """Raises a ValueError unless `params` has the shapes of `config`'s policy's own, or for
+    `where="critic_params"`, of its loss's critic's (`losses.critic`).
 
     The shapes are compared after the leading axes `lead` (a sweep's `(G, S)`).
     """
-    shapes = jax.tree.map(np.shape, serialization.to_state_dict(policy_params))
+    critic = where == "critic_params"
+    network = losses.critic(config.loss) if critic else config.network
+    if network is None:
+        raise ValueError(f"{where}: the loss {config.loss!r} has no critic")
+    shapes = jax.tree.map(np.shape, serialization.to_state_dict(params))
     want = jax.tree.map(lambda leaf: (*lead, *leaf.shape), jax.eval_shape(
-        lambda key: policies.init_network(key, config.network, config.env_module.OBS_SIZE),
+        lambda key: policies.init_network(key, network, config.env_module.OBS_SIZE),
         jax.ShapeDtypeStruct((2,), np.uint32)))
     if shapes != want:
         raise ValueError(
-            f"{where}: parameters do not fit the policy {_describe(config.network)}; "
-            f"expected shapes {want}, got {shapes}"
+            f"{where}: parameters do not fit the {'critic' if critic else 'policy'} "
+            f"{_describe(network)}; expected shapes {want}, got {shapes}"
         )
 
 
@@ -374,9 +398,11 @@ def load(
         qualified names the checkpoint holds.
 
     Returns:
-      `Checkpoint(policy_params, config, version, metrics, grid, seeds)`: for a sweep's file, the
-      arrays `[G, S, ...]` and its grid and seeds (`select_run` takes one run); else grid and
-      seeds are None.
+      `Checkpoint(policy_params, config, version, metrics, grid, seeds, critic_params)`: for a
+      sweep's file, the arrays `[G, S, ...]` and its grid and seeds (`select_run` takes one run);
+      else grid and seeds are None. `critic_params` are the loss's critic's where they were
+      saved (`train(config, init_params=..., init_critic_params=...)` starts from both), else
+      None.
 
     Raises:
       FileNotFoundError: there is no such file.
@@ -412,9 +438,9 @@ def load(
         config = config_from_dict(fields["config"], objects)
         grid, seeds = _read_runs(fields.get("runs"))
         lead = () if grid is None else (len(grid), len(cast(np.ndarray, seeds)))
-        _check_floats(fields["policy_params"], "policy_params")
-        policy_params = jax.tree.map(jnp.asarray, fields["policy_params"])
-        _check_params_match(policy_params, config, "policy_params", lead)
+        policy_params = _read_params(fields["policy_params"], config, "policy_params", lead)
+        critic_params = None if fields.get("critic_params") is None else _read_params(
+            fields["critic_params"], config, "critic_params", lead)
         metrics = fields.get("metrics")
         if metrics is not None:
             _check_floats(metrics, "metrics")
@@ -423,7 +449,18 @@ def load(
     except (AttributeError, KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: damaged jaxpg checkpoint ({type(e).__name__}: {e})") from None
     _warn_if_diverged(fields["policy_params"], lead, path)
-    return Checkpoint(policy_params, config, version, metrics, grid, seeds)
+    return Checkpoint(policy_params, config, version, metrics, grid, seeds, critic_params)
+
+
+def _read_params(params: object, config: train_config.TrainConfig, where: str,
+                 lead: tuple[int, ...]) -> dict:
+    """A network's parameters as a file holds them (`where`: "policy_params" or
+    "critic_params"), as jax arrays, once their types and shapes are checked (`_check_floats`,
+    `_check_params_match`)."""
+    _check_floats(params, where)
+    loaded = jax.tree.map(jnp.asarray, params)
+    _check_params_match(loaded, config, where, lead)
+    return loaded
 
 
 def _unpack(data: bytes, path: pathlib.Path) -> dict[Any, Any]:
@@ -486,7 +523,8 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
       s: the index of the seed, in [0, S).
 
     Returns:
-      A `Checkpoint` of that one run, its config with the run's own hyperparameters and physics.
+      A `Checkpoint` of that one run (its policy's, metrics and critic's), its config with the
+      run's own hyperparameters and physics.
 
     Raises:
       ValueError: naming `run`, for a checkpoint of one run or a run outside the sweep.
@@ -507,7 +545,9 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
         env=loaded.config.env_params.replace(**physics) if physics else loaded.config.env)
     run = functools.partial(jax.tree.map, lambda leaf: leaf[g, s])
     return Checkpoint(run(loaded.policy_params), config, loaded.version,
-                      None if loaded.metrics is None else run(loaded.metrics))
+                      None if loaded.metrics is None else run(loaded.metrics),
+                      critic_params=None if loaded.critic_params is None
+                      else run(loaded.critic_params))
 
 
 _FLOAT_DTYPES = (np.float32, np.float64)

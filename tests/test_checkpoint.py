@@ -21,7 +21,7 @@ from conftest import SMALL_CONFIG
 from flax import serialization
 
 import jaxpg
-from jaxpg import atomic_files, cartpole, checkpoint, policies
+from jaxpg import atomic_files, cartpole, checkpoint, losses, policies, sweep, train
 from jaxpg.iteration import Metrics
 from jaxpg.train_config import TrainConfig
 
@@ -95,7 +95,8 @@ def test_file_holds_the_documented_fields(tmp_path):
     assert set(outer) == {"format", "format_version", "sha256", "content"}
     assert outer["format"] == "jaxpg-checkpoint" and outer["format_version"] == 3
     assert outer["sha256"] == hashlib.sha256(outer["content"]).hexdigest()
-    assert set(payload) == {"jaxpg_version", "config", "policy_params", "metrics"}
+    assert set(payload) == {"jaxpg_version", "config", "policy_params", "metrics", "critic_params"}
+    assert payload["critic_params"] is None  # (CONFIG's loss has no critic)
     assert payload["config"]["hidden"] == [4, 3]
     assert payload["config"]["env"]["masspole"] == pytest.approx(0.2)
     assert payload["config"]["env"]["integrator"] == "semi-implicit"
@@ -424,3 +425,87 @@ def test_atomic_write_replaces_content_with_ordinary_permissions(tmp_path):
     ordinary.write_text("x")
     assert path.stat().st_mode == ordinary.stat().st_mode  # the umask's, not mkstemp's 0600
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "ordinary.txt"]
+
+
+# --- A loss's critic ------------------------------------------------------------------------------
+
+BASELINE = TrainConfig(iterations=2, episodes=3, max_steps=20, loss="baseline")
+WITH_CRITIC = dataclasses.replace(CONFIG, loss="baseline")  # CONFIG's network, and a critic
+
+
+def _critic(config, seed=0):
+    return policies.init_network(jax.random.PRNGKey(seed), losses.critic(config.loss))
+
+
+@pytest.fixture(scope="module")
+def baseline_sweep():
+    return sweep(BASELINE, seeds=range(2), grid={"learning_rate": [0.01, 0.02]},
+                 show_progress=False)
+
+
+def test_a_sweeps_critic_is_saved_and_each_run_takes_its_own(tmp_path, baseline_sweep):
+    checkpoint.save_sweep(tmp_path, baseline_sweep)
+    loaded = checkpoint.load(tmp_path)
+    _assert_trees_equal(loaded.critic_params, baseline_sweep.critic_params)
+    run = checkpoint.select_run(loaded, 1, 0)  # seed 0 at the second learning rate
+    _assert_trees_equal(run.critic_params,
+                        jax.tree.map(lambda leaf: leaf[1, 0], baseline_sweep.critic_params))
+
+
+def test_a_loaded_critic_warm_starts_training_as_the_one_saved(tmp_path):
+    result = train(BASELINE, seed=0, show_progress=False)
+    path = checkpoint.save(tmp_path, result.policy_params, BASELINE, result.metrics,
+                           critic_params=result.critic_params)
+    loaded = checkpoint.load(path)
+    _assert_trees_equal(loaded.critic_params, result.critic_params)
+    one = dataclasses.replace(BASELINE, iterations=1)
+    warm, direct, fresh = (
+        train(one, seed=1, init_params=loaded.policy_params, init_critic_params=critic,
+              show_progress=False)
+        for critic in (loaded.critic_params, result.critic_params, None))
+    _assert_trees_equal(warm.critic_params, direct.critic_params)
+    _assert_trees_equal(warm.policy_params, direct.policy_params)
+    # Without the saved critic, the critic restarts from its initialisation: other weights.
+    assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(warm.critic_params),
+                                                        jax.tree.leaves(fresh.critic_params)))
+
+
+def test_ppos_critic_round_trips(tmp_path):
+    config = dataclasses.replace(CONFIG, loss="ppo")
+    path = checkpoint.save(tmp_path, _params(config), config, critic_params=_critic(config, 1))
+    _assert_trees_equal(checkpoint.load(path).critic_params, _critic(config, 1))
+
+
+def test_files_without_a_critic_load_without_one(tmp_path):
+    path = tmp_path / "policy.msgpack"
+    # As files were written before critics were saved: no critic_params field.
+    path.write_bytes(_payload(config=checkpoint.config_to_dict(WITH_CRITIC)))
+    loaded = checkpoint.load(path)
+    assert loaded.critic_params is None and loaded.config == WITH_CRITIC
+    saved = checkpoint.save(tmp_path, _params(WITH_CRITIC), WITH_CRITIC)  # saved without one
+    assert checkpoint.load(saved).critic_params is None
+
+
+def test_save_refuses_a_critic_the_loss_has_not_or_of_other_shapes(tmp_path):
+    with pytest.raises(ValueError, match="^critic_params: the loss 'reinforce' has no critic$"):
+        checkpoint.save(tmp_path, _params(CONFIG), CONFIG, critic_params=_critic(WITH_CRITIC))
+    with pytest.raises(ValueError, match="^critic_params: parameters do not fit the critic"):
+        checkpoint.save(tmp_path, _params(WITH_CRITIC), WITH_CRITIC,
+                        critic_params=_params(WITH_CRITIC))
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("config, critic, problem", [
+    (CONFIG, lambda: _critic(WITH_CRITIC), "has no critic"),
+    (WITH_CRITIC, lambda: {"params": {"w": np.ones(3, np.int8)}},
+     "critic_params.params.w: expected float32 or float64"),
+    (WITH_CRITIC, lambda: _params(CONFIG), "do not fit the critic"),
+], ids=["no-critic", "int8", "policy-shaped"])
+def test_files_of_bad_critics_are_one_line_errors_naming_the_path(tmp_path, config, critic,
+                                                                  problem):
+    path = tmp_path / "policy.msgpack"
+    path.write_bytes(_payload(config=checkpoint.config_to_dict(config),
+                              critic_params=jax.tree.map(np.asarray, critic())))
+    with pytest.raises(ValueError, match=problem) as error:
+        checkpoint.load(path)
+    assert str(error.value).startswith(f"{path}: damaged") and "\n" not in str(error.value)
