@@ -6,6 +6,7 @@ command in this process and returns its exit status.
 """
 
 import argparse
+import contextlib
 import dataclasses
 import fractions
 import os
@@ -18,7 +19,7 @@ import threading
 import time
 import types
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, NoReturn, TextIO, cast
 
 if TYPE_CHECKING:  # (the commands import numpy and jaxpg's modules when they run: `main`)
@@ -574,9 +575,10 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         args.max_steps = envs.max_steps(env_params)
     policy = _one_policy(policies, config)
     if policy is not None and len(settings) == 1 and args.out is None:
-        stats = evaluate(policy, episodes=args.episodes, max_steps=args.max_steps,
-                         env=env_params.replace(**settings[0]), seed=args.seed,
-                         backend=args.backend)
+        with _chunk_progress(args) as on_chunk:
+            stats = evaluate(policy, episodes=args.episodes, max_steps=args.max_steps,
+                             env=env_params.replace(**settings[0]), seed=args.seed,
+                             backend=args.backend, on_chunk=on_chunk)
         print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps "
               f"in {args.backend} {args.env} ({physics_label(settings[0])}):")
         print(f"mean {stats.mean:.3f}  std {stats.std:.3f}  min {stats.min:g}  "
@@ -598,6 +600,19 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         with atomic_files.staged(args.out) as stage:
             _write_robustness(stage, result, values, args)
         print(f"wrote {args.out}/: robustness.json, robustness.csv, robustness.png")
+
+
+def _chunk_progress(args: argparse.Namespace
+                    ) -> contextlib.AbstractContextManager[Callable[[int], None] | None]:
+    """The progress of `evaluate`'s chunks where its episodes play in several, unless --quiet;
+    otherwise None."""
+    from jaxpg import progress
+    from jaxpg.evaluation import chunk_episodes
+
+    if (args.quiet or args.backend != "jaxpg" or min(args.episodes, args.max_steps) < 1
+            or chunk_episodes(args.episodes, args.max_steps) == args.episodes):
+        return contextlib.nullcontext()
+    return progress.count(args.episodes, "episodes")
 
 
 def _write_robustness(folder: pathlib.Path, result: "Robustness",
@@ -826,6 +841,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--env", help="an environment of the policy's kind (default: the policy's own; "
                    "CartPole-v1 for basic)")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress output (shown where the episodes play in chunks)")
     _add_physics_args(p, ranges=False)
     p.set_defaults(handler=cmd_evaluate)
 

@@ -9,7 +9,7 @@ init_states=...)` starts jaxpg's episodes from them.
 import functools
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple, TypeGuard, cast
 
 import flax.linen as nn
@@ -26,6 +26,9 @@ from jaxpg.types import Action, Observation, Params, Policy, PRNGKey
 from jaxpg.validation import check_choice, check_int
 
 BACKENDS = ("jaxpg", "gymnasium")
+# Steps of episodes (episodes x max_steps) that `evaluate` plays at once in jaxpg, about 1.3 GiB in
+# float32 (`budget.EVAL_STEP_FLOATS`): more play in chunks of as many episodes, on any machine.
+STEPS_AT_ONCE = 2**25
 # Runs that `robustness` plays side by side; chosen for speed (docs/performance.md).
 BLOCK = 16
 
@@ -165,11 +168,15 @@ def evaluate(
     seed: int = 0,
     backend: str = "jaxpg",
     init_states: npt.ArrayLike | None = None,
+    on_chunk: Callable[[int], None] | None = None,
 ) -> EvalResult:
     """Plays `episodes` episodes of at most `max_steps` steps and summarizes their returns.
 
     With backend "jaxpg" the episodes run as one compiled `rollout.rollout` from
-    `jax.random.PRNGKey(seed)`. With backend "gymnasium", episode i runs in `gymnasium.make(env)`
+    `jax.random.PRNGKey(seed)`; more than `STEPS_AT_ONCE` steps (episodes x `max_steps`) play in
+    chunks of C = `chunk_episodes(episodes, max_steps)` episodes, chunk c as one rollout of C
+    episodes from `fold_in(PRNGKey(seed), c)` (the last one's extra episodes dropped), one
+    program for every chunk. With backend "gymnasium", episode i runs in `gymnasium.make(env)`
     from `reset(seed=seed + i)`, one step at a time, as the book does; the policy's uniform at step
     t of episode i is drawn from `fold_in(fold_in(PRNGKey(seed), i), t)`. An episode also ends when
     the environment's own time limit (`max_steps` of its params) truncates it.
@@ -188,13 +195,16 @@ def evaluate(
       backend: "jaxpg" or "gymnasium".
       init_states: optional `[E, 4]` initial states of CartPole (jaxpg only), e.g.
         `gymnasium_reset_states`.
+      on_chunk: optional: called on the host after each chunk in jaxpg with the episodes played
+        so far (progress).
 
     Returns:
       `EvalResult` with the returns `[E]`.
 
     Raises:
       ValueError: one line naming the argument, for a policy that is not callable, an argument out
-        of range, episodes that need more memory than the machine's (`budget.evaluation_bytes`),
+        of range, episodes that need more memory than the machine's (a chunk's
+        `budget.evaluation_bytes`, and every return kept twice in float64),
         `init_states` of another shape than `[E, 4]` or with backend "gymnasium" or another
         environment, or a policy that plays an action the environment does not have.
     """
@@ -205,9 +215,6 @@ def evaluate(
     check_int("seed", seed, 0, 2**32)
     check_choice("backend", backend, BACKENDS)
     env_params, env_id = resolve_env(env)
-    if backend == "jaxpg":
-        budget.check_fits(budget.evaluation_bytes(episodes, max_steps), "episodes",
-                          f"playing {episodes} episodes of at most {max_steps} steps at once")
     if backend == "gymnasium":
         if init_states is not None:
             raise ValueError(
@@ -215,12 +222,50 @@ def evaluate(
             )
         returns = _gymnasium_returns(policy, episodes, max_steps, env_params, env_id, seed)
     else:
+        chunk = chunk_episodes(episodes, max_steps)
+        # The returns are kept in float64, and summarize's deviations are as many again.
+        budget.check_fits(budget.evaluation_bytes(chunk, max_steps) + 16 * episodes, "episodes",
+                          f"playing {episodes} episodes of at most {max_steps} steps, {chunk} "
+                          f"at once")
         init_state = None if init_states is None else _init_state(init_states, episodes, env)
-        returns, invalid = _jaxpg_returns(
-            jax.random.PRNGKey(seed), env_params, init_state, _as_argument(policy), episodes,
-            max_steps)
-        rollout.check_played_actions(invalid, env_params)
+        returns = _jaxpg_chunks(jax.random.PRNGKey(seed), env_params, init_state,
+                                _as_argument(policy), episodes, max_steps, chunk, on_chunk)
     return summarize(returns)
+
+
+def chunk_episodes(episodes: int, max_steps: int) -> int:
+    """How many episodes `evaluate` plays at once in jaxpg: all of them, or as evenly many in
+    each chunk as keeps a chunk within `STEPS_AT_ONCE` steps (one episode at least).
+
+    Args:
+      episodes: E, a positive integer.
+      max_steps: the longest an episode may run, a positive integer.
+
+    Returns:
+      C, at most E: the episodes of every chunk, the last one's padded to C.
+    """
+    most = max(1, STEPS_AT_ONCE // max_steps)
+    chunks = -(-episodes // most)
+    return -(-episodes // chunks)
+
+
+def _jaxpg_chunks(key: PRNGKey, env_params: Any, init_state: Any, policy: Policy, episodes: int,
+                  max_steps: int, chunk: int, on_chunk: Callable[[int], None] | None
+                  ) -> np.ndarray:
+    """The returns `[episodes]` of `evaluate`'s episodes in jaxpg, played `chunk` at a time."""
+    returns = np.empty(episodes)
+    for c, start in enumerate(range(0, episodes, chunk)):
+        count = min(chunk, episodes - start)
+        # The last chunk starts from its own states again in the lanes it does not need.
+        states = None if init_state is None else jax.tree.map(
+            lambda leaf: np.asarray(leaf)[start + np.arange(chunk) % count], init_state)
+        played, invalid = _jaxpg_returns(key if chunk == episodes else jax.random.fold_in(key, c),
+                                         env_params, states, policy, chunk, max_steps)
+        rollout.check_played_actions(invalid, env_params)
+        returns[start:start + count] = np.asarray(played)[:count]
+        if on_chunk is not None:
+            on_chunk(start + count)
+    return returns
 
 
 def summarize(returns: npt.ArrayLike) -> EvalResult:
@@ -441,7 +486,8 @@ def robustness(
     """Plays every policy in every physics setting, as one compiled program.
 
     Cell (g, s, p) holds the very episodes of `evaluate(policy (g, s), episodes, max_steps,
-    env=<env with setting p>, seed=seed)`: the same initial states and uniforms, the same returns.
+    env=<env with setting p>, seed=seed)` where that plays them in one chunk (at most
+    `STEPS_AT_ONCE` steps): the same initial states and uniforms, the same returns.
     The runs (a policy in a setting) play side by side on the last axis of every array, `BLOCK`
     at a time. Parameters and physics are arguments of the program: other policies and values of
     the same shapes compile nothing.

@@ -1,7 +1,8 @@
-"""Per-iteration progress of training, printed on the host.
+"""Progress of training, per iteration, and of other work done in parts, printed on the host.
 
 `bar` yields the function that training calls once per iteration with every run's mean return;
-when progress is off it yields None, so training can skip the work of reporting.
+when progress is off it yields None, so training can skip the work of reporting. `count` yields
+one that work in parts (`evaluation.evaluate`'s chunks) calls with how much is done.
 """
 
 import contextlib
@@ -20,10 +21,10 @@ OnIteration = Callable[[int, "Metrics"], None]
 
 
 class _Bar:
-    """The progress of one training: a line per iteration, rewritten in place on a terminal."""
+    """The progress of one piece of work: a line per step, rewritten in place on a terminal."""
 
     def __init__(self, total: int, stream: TextIO, label: str) -> None:
-        """A bar for `total` iterations written to `stream`, each line after `label`."""
+        """A bar for `total` steps written to `stream`, each line after `label`."""
         self.total = total
         self.stream = stream
         self.label = f"{label}: " if label else ""
@@ -31,19 +32,22 @@ class _Bar:
         self.start = time.perf_counter()
         self.every = max(1, total // 10)  # in logs, about ten lines per run
 
-    def update(self, iteration: int, metrics: "Metrics") -> None:
-        """Shows iteration `iteration` (from 0): every one on a terminal, about ten in a log."""
-        done = iteration + 1
-        if not self.interactive and done % self.every and done != self.total:
+    def show(self, text: str, due: bool) -> None:
+        """Shows `text`: each time on a terminal, in a log where `due`."""
+        if not (self.interactive or due):
             return
-        mean_returns = np.asarray(metrics.mean_return)
-        runs = f" (mean of {mean_returns.size} runs)" if mean_returns.size > 1 else ""
-        line = (
-            f"{self.label}Iteration: {done}/{self.total}, mean rewards: "
-            f"{float(np.mean(mean_returns)):.1f}{runs} [{time.perf_counter() - self.start:.1f}s]"
-        )
+        line = f"{self.label}{text} [{time.perf_counter() - self.start:.1f}s]"
         self.stream.write(("\r" + line) if self.interactive else line + "\n")
         self.stream.flush()
+
+    def update(self, iteration: int, metrics: "Metrics") -> None:
+        """Shows iteration `iteration` (from 0) of training."""
+        mean_returns = np.asarray(metrics.mean_return)
+        runs = f" (mean of {mean_returns.size} runs)" if mean_returns.size > 1 else ""
+        done = iteration + 1
+        self.show(f"Iteration: {done}/{self.total}, mean rewards: "
+                  f"{float(np.mean(mean_returns)):.1f}{runs}",
+                  not done % self.every or done == self.total)
 
     def close(self) -> None:
         """Ends the line rewritten on a terminal."""
@@ -73,6 +77,33 @@ def bar(total: int, enabled: bool = True, stream: TextIO | None = None, label: s
     current = _Bar(total, stream or sys.stderr, label)
     try:
         yield current.update
+    finally:
+        current.close()
+
+
+@contextlib.contextmanager
+def count(total: int, what: str, stream: TextIO | None = None) -> Iterator[Callable[[int], None]]:
+    """Shows how many of `total` things are done on stderr while the block runs.
+
+    Args:
+      total: how many things the work does, such as episodes.
+      what: their name, such as "episodes".
+      stream: where to write; stderr by default.
+
+    Yields:
+      `on_done(done)` to call with how many are done so far; shown as "what: done/total".
+    """
+    current = _Bar(total, stream or sys.stderr, "")
+    shown = [0]  # in a log, a line each time another tenth is done
+
+    def on_done(done: int) -> None:
+        """Shows `done` of `total`."""
+        due = done // current.every > shown[0] // current.every or done == total
+        shown[0] = done
+        current.show(f"{what}: {done}/{total}", due)
+
+    try:
+        yield on_done
     finally:
         current.close()
 

@@ -76,3 +76,38 @@ def test_held_out_episodes_beyond_memory_are_refused_before_training():
     with xla_compiles() as compiled, pytest.raises(ValueError, match="^eval_episodes: playing "):
         sweep(TrainConfig(), seeds=range(1024), eval_episodes=2**20 - 1)
     assert not compiled
+
+
+def test_episodes_beyond_a_chunk_play_in_chunks_of_one_program_within_memory(monkeypatch):
+    """12 episodes of 100 steps at 500 steps a chunk: 3 chunks of 4 (at most 500 // 100 = 5)."""
+    from jaxpg import evaluation
+
+    states = evaluation.gymnasium_reset_states(12, seed=3)
+    # The basic policy ignores its uniforms: from the same states, the same returns in any chunks.
+    whole = evaluate(policies.basic_policy, episodes=12, max_steps=100, init_states=states)
+    monkeypatch.setattr(evaluation, "STEPS_AT_ONCE", 500)
+    # Room for a chunk, 4 * 100 * 40 bytes and 12 returns at 16 bytes, not for 12 * 100 * 40.
+    monkeypatch.setattr(budget, "machine_memory", lambda: int(20000 / budget.USABLE_SHARE))
+    done = []
+    with xla_compiles() as compiled:
+        chunked = evaluate(policies.basic_policy, episodes=12, max_steps=100, init_states=states,
+                           on_chunk=done.append)
+    assert done == [4, 8, 12]
+    assert [name for name in compiled if "_jaxpg_returns" in name] == ["jit(_jaxpg_returns)"]
+    np.testing.assert_array_equal(chunked.returns, whole.returns)
+    drawn = evaluate(policies.basic_policy, episodes=12, max_steps=100).returns
+    assert len({tuple(drawn[start:start + 4]) for start in (0, 4, 8)}) == 3  # each its own resets
+    with pytest.raises(ValueError, match="^episodes: playing 13 episodes of at most 100 steps, 5 "):
+        monkeypatch.setattr(budget, "machine_memory", lambda: int(12000 / budget.USABLE_SHARE))
+        evaluate(policies.basic_policy, episodes=13, max_steps=100)
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_the_command_shows_the_chunks_done_unless_quiet(monkeypatch, capsys, quiet):
+    from jaxpg import cli, evaluation
+
+    monkeypatch.setattr(evaluation, "STEPS_AT_ONCE", 100)
+    args = ["evaluate", "--episodes", "12", "--max-steps", "20", *(["--quiet"] * quiet)]
+    assert cli.run_command(args) == 0
+    shown = [line.split(" [")[0] for line in capsys.readouterr().err.splitlines()]
+    assert shown == ([] if quiet else ["episodes: 4/12", "episodes: 8/12", "episodes: 12/12"])
