@@ -6,9 +6,11 @@ command in this process and returns its exit status.
 """
 
 import argparse
+import atexit
 import contextlib
 import dataclasses
 import fractions
+import logging
 import os
 import pathlib
 import re
@@ -990,6 +992,17 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
     print(f"{PROG}: warning: {text}", file=sys.stderr)
 
 
+# How matplotlib's log starts the lines of a cache directory it cannot use: it then keeps a
+# temporary one, and the command has said already that the cache cannot be used (`executables`).
+_MATPLOTLIB_CACHE = ("mkdir -p failed for path ", "%s is not a writable directory",
+                     "Matplotlib created a temporary cache directory ")
+
+
+def _not_of_matplotlibs_cache(record: logging.LogRecord) -> bool:
+    """Whether matplotlib's log shows `record`: any but its lines of an unusable cache."""
+    return not str(record.msg).startswith(_MATPLOTLIB_CACHE)
+
+
 _GRACE = 1.0  # seconds the command has to end itself after Ctrl-C, before it is ended
 _ending = threading.Lock()  # held by whichever thread ends the process
 _command = [PROG]  # how the "interrupted" line names the command, once it is parsed
@@ -1049,11 +1062,15 @@ def main(argv: Sequence[str] | None = None) -> NoReturn:
     """
     try:  # (a Ctrl-C even before the handler is in place raises KeyboardInterrupt here)
         signal.signal(signal.SIGINT, _interrupt)  # first: Ctrl-C during the imports too
+        # Python's shutdown, after the last exit handler (this one, registered first), gives
+        # Ctrl-C its default action, which would end the finished command by the signal.
+        atexit.register(signal.signal, signal.SIGINT, signal.SIG_IGN)
         _watch_ctrl_c()
         from jaxpg import xla_options
 
         sys.unraisablehook = _unraisable
         warnings.showwarning = _show_warning
+        logging.getLogger("matplotlib").addFilter(_not_of_matplotlibs_cache)
         args = build_parser().parse_args(argv)
         _command[1:] = [args.command]
         xla_options.configure_xla(runs=_runs_at_once(args))

@@ -450,3 +450,18 @@ def test_the_command_warns_in_one_line_and_once_of_an_unreadable_compilation_cac
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 2 and "unreadable entries" in lines[0] and "'jit_add'" in lines[0]
     assert lines[1] == "jaxpg: warning: something else"
+
+
+def test_a_cache_home_that_is_a_file_means_training_with_one_warning(tmp_path):
+    """matplotlib, whose cache is there too, keeps a temporary one without its two lines."""
+    (tmp_path / "cache").write_text("a file")
+    environment = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    environment.pop("MPLCONFIGDIR", None)
+    common = [sys.executable, "-m", "jaxpg.cli", "train", *SMALL[:-1]]  # (--no-cache aside)
+    finished = subprocess.run([*common, "--out", str(tmp_path / "out")], env=environment,
+                              capture_output=True, text=True)
+    assert finished.returncode == 0
+    assert finished.stderr.splitlines() == [
+        f"keeping no compiled programs in {tmp_path}/cache/jaxpg/programs: it cannot be used "
+        f"(Not a directory)"]
+    assert (tmp_path / "out" / checkpoint.FILENAME).is_file()

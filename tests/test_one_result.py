@@ -122,6 +122,23 @@ def test_ctrl_c_ends_a_render_of_a_long_episode(tmp_path):
     assert not (tmp_path / "long.gif").exists()
 
 
+def test_ctrl_c_while_a_finished_command_shuts_down_keeps_its_status(tmp_path):
+    """Python's shutdown of the modules JAX loaded takes about 0.5 s after the command's answer;
+    Ctrl-C then leaves the answer's status, and ends the process by no signal (status -2)."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaxpg.cli", "render", "--max-steps", str(10**12), "--out",
+         str(tmp_path / "x.gif")], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        answer = process.stderr.readline()
+        time.sleep(0.1)
+        process.send_signal(signal.SIGINT)
+        status = process.wait(timeout=20)
+    finally:
+        process.kill()
+    assert answer.startswith("jaxpg render: error: max_steps: drawing an episode"), answer
+    assert status == 2 and process.stderr.read() == ""
+
+
 def test_no_output_folder_replaced_once_cancelled(tmp_path, monkeypatch):
     """After Ctrl-C a block that ends anyway (its KeyboardInterrupt lost) replaces nothing."""
     from jaxpg import atomic_files
