@@ -250,9 +250,9 @@ def check_ranges(randomize: Any, env_params: Any) -> Ranges:
             low, high = (float(bound) for bound in bounds)
         except (TypeError, ValueError):
             raise ValueError(f"{name}: expected a range (low, high), got {bounds!r}") from None
+        check_finite(name, (low, high))  # first: NaN is neither above nor below
         if not low <= high:
             raise ValueError(f"{name}: the range's low is above its high: ({low}, {high})")
-        check_finite(name, (low, high))
         for bound in (low, high):
             module.check_params(env_params.replace(**{name: bound}))
         check_representable(f"{name} (high - low)", in_float64(np.subtract, high, low), floats)

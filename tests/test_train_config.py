@@ -52,6 +52,7 @@ TOO_SMALL = r"must be at least 1\.175e-38 \(the smallest normal float32\)"
      f"masspole \\* length: {TOO_LARGE}, got 1e\\+40$"),
     ("randomize", {"length": (0.3, 1e39)}, f"length: {TOO_LARGE}"),
     ("randomize", {"tau": (1e-300, 0.02)}, f"tau: {TOO_SMALL}"),
+    ("randomize", {"length": (float("nan"), 1.0)}, "length: must be finite, got NaN or infinity$"),
     # Each bound is held, but a draw scales by the width, 6e38.
     ("randomize", {"gravity": (-3e38, 3e38)}, f"gravity \\(high - low\\): {TOO_LARGE}"),
     # Wrong kinds of randomize.
