@@ -916,7 +916,9 @@ def _execute(args: argparse.Namespace) -> int:
         print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        with _saying:  # one line, whether this thread or `_watch_ctrl_c`'s says it
+            print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+            _said.set()
         return 130
 
 
@@ -1006,6 +1008,8 @@ def _not_of_matplotlibs_cache(record: logging.LogRecord) -> bool:
 _GRACE = 1.0  # seconds the command has to end itself after Ctrl-C, before it is ended
 _ending = threading.Lock()  # held by whichever thread ends the process
 _command = [PROG]  # how the "interrupted" line names the command, once it is parsed
+_saying = threading.Lock()  # held while the "interrupted" line is said
+_said = threading.Event()  # set once the command has said it
 
 
 def _end(status: int, line: str | None = None) -> NoReturn:
@@ -1041,7 +1045,8 @@ def _watch_ctrl_c() -> None:
 
         atomic_files.cancel()
         time.sleep(_GRACE)
-        _end(130, f"{' '.join(_command)}: interrupted")
+        with _saying:
+            _end(130, None if _said.is_set() else f"{' '.join(_command)}: interrupted")
 
     threading.Thread(target=watch, daemon=True, name="jaxpg-ctrl-c").start()
 

@@ -139,6 +139,46 @@ def test_ctrl_c_while_a_finished_command_shuts_down_keeps_its_status(tmp_path):
     assert status == 2 and process.stderr.read() == ""
 
 
+# The command's own "interrupted" line is slow to write (a loaded terminal): the watcher that ends
+# the command `_GRACE` seconds after Ctrl-C comes meanwhile, and must not say it again.
+_SAID_SLOWLY = """
+import sys, time
+from jaxpg import cli
+
+class Slow:
+    def write(self, text):
+        sys.__stderr__.write(text)
+        sys.__stderr__.flush()
+        if "interrupted" in text:
+            time.sleep(2 * cli._GRACE)
+    def flush(self):
+        sys.__stderr__.flush()
+
+def handler(args):
+    sys.stdout.write("running\\n")
+    sys.stdout.flush()
+    sys.stderr = Slow()
+    while True:
+        time.sleep(0.01)
+
+cli.cmd_conformance = handler  # (the parser takes the name's value when it is built)
+cli.main(["conformance"])
+"""
+
+
+def test_the_interrupted_line_is_said_once_when_the_command_says_it_slowly():
+    process = subprocess.Popen([sys.executable, "-c", _SAID_SLOWLY], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline() == "running\n"
+        process.send_signal(signal.SIGINT)
+        status = process.wait(timeout=20)
+    finally:
+        process.kill()
+    assert status == 130
+    assert process.stderr.read() == "jaxpg conformance: interrupted\n"
+
+
 def test_no_output_folder_replaced_once_cancelled(tmp_path, monkeypatch):
     """After Ctrl-C a block that ends anyway (its KeyboardInterrupt lost) replaces nothing."""
     from jaxpg import atomic_files
