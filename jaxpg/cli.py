@@ -591,9 +591,10 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
                          "policies, settings or --out are played in jaxpg")
     if args.out is not None:
         atomic_files.check_out_dir(args.out)
-    result = robustness(policies, values, episodes=args.episodes, max_steps=args.max_steps,
-                        seed=args.seed, network=config.network if config else None,
-                        env=env_params)
+    with _chunk_progress(args) as on_chunk:
+        result = robustness(policies, values, episodes=args.episodes, max_steps=args.max_steps,
+                            seed=args.seed, network=config.network if config else None,
+                            env=env_params, on_chunk=on_chunk)
     print(f"{description} over {args.episodes} episodes of at most {args.max_steps} steps in "
           f"jaxpg {args.env}, median (mean) return over every policy's episodes:")
     for label, returns in zip(result.labels, result.pooled):
@@ -606,8 +607,8 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 
 def _chunk_progress(args: argparse.Namespace
                     ) -> contextlib.AbstractContextManager[Callable[[int], None] | None]:
-    """The progress of `evaluate`'s chunks where its episodes play in several, unless --quiet;
-    otherwise None."""
+    """The progress of `evaluate`'s (or `robustness`'s) chunks where the episodes play in
+    several, unless --quiet; otherwise None."""
     from jaxpg import progress
     from jaxpg.evaluation import chunk_episodes
 

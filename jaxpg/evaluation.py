@@ -26,9 +26,10 @@ from jaxpg.types import Action, Observation, Params, Policy, PRNGKey
 from jaxpg.validation import check_choice, check_int
 
 BACKENDS = ("jaxpg", "gymnasium")
-# Steps of episodes (episodes x max_steps) that `evaluate` plays at once in jaxpg, about 1.3 GiB in
-# float32 (`budget.EVAL_STEP_FLOATS`): more play in chunks of as many episodes, on any machine.
-STEPS_AT_ONCE = 2**25
+# Steps of episodes (episodes x max_steps) that `evaluate` plays at once in jaxpg, 80 MiB in float32
+# (`budget.EVAL_STEP_FLOATS`), and `robustness` in each of its `BLOCK` runs: more play in chunks of
+# as many episodes, on any machine.
+STEPS_AT_ONCE = 2**21
 # Runs that `robustness` plays side by side; chosen for speed (docs/performance.md).
 BLOCK = 16
 
@@ -253,19 +254,45 @@ def _jaxpg_chunks(key: PRNGKey, env_params: Any, init_state: Any, policy: Policy
                   max_steps: int, chunk: int, on_chunk: Callable[[int], None] | None
                   ) -> np.ndarray:
     """The returns `[episodes]` of `evaluate`'s episodes in jaxpg, played `chunk` at a time."""
-    returns = np.empty(episodes)
-    for c, start in enumerate(range(0, episodes, chunk)):
-        count = min(chunk, episodes - start)
+
+    def play(key: PRNGKey, start: int, count: int) -> tuple[jax.Array, jax.Array | None]:
+        """The returns `[chunk]` of the chunk of episodes from `start`."""
         # The last chunk starts from its own states again in the lanes it does not need.
         states = None if init_state is None else jax.tree.map(
             lambda leaf: np.asarray(leaf)[start + np.arange(chunk) % count], init_state)
-        played, invalid = _jaxpg_returns(key if chunk == episodes else jax.random.fold_in(key, c),
-                                         env_params, states, policy, chunk, max_steps)
+        return _jaxpg_returns(key, env_params, states, policy, chunk, max_steps)
+
+    return _in_chunks(play, key, episodes, chunk, env_params, on_chunk)
+
+
+def _in_chunks(play: Callable[[PRNGKey, int, int], tuple[jax.Array, jax.Array | None]],
+               key: PRNGKey, episodes: int, chunk: int, env_params: Any,
+               on_chunk: Callable[[int], None] | None) -> np.ndarray:
+    """The returns `[..., episodes]` of episodes played `chunk` at a time (`evaluate`).
+
+    Args:
+      play: `(key, start, count) -> (returns [..., chunk], invalid)` of the chunk whose first
+        `count` episodes are `start` onwards.
+      key: the key of all the episodes, the one chunk's where there is one; chunk c's is
+        `fold_in(key, c)` where there are more.
+      episodes: E.
+      chunk: the episodes of every chunk (`chunk_episodes`).
+      env_params: the environment, whose actions the policy must play.
+      on_chunk: optional: called after each chunk with the episodes played so far.
+
+    Returns:
+      The returns, float64.
+    """
+    parts = []
+    for c, start in enumerate(range(0, episodes, chunk)):
+        count = min(chunk, episodes - start)
+        played, invalid = play(key if chunk == episodes else jax.random.fold_in(key, c), start,
+                               count)
         rollout.check_played_actions(invalid, env_params)
-        returns[start:start + count] = np.asarray(played)[:count]
+        parts.append(np.asarray(played, np.float64)[..., :count])
         if on_chunk is not None:
             on_chunk(start + count)
-    return returns
+    return np.concatenate(parts, axis=-1)
 
 
 def summarize(returns: npt.ArrayLike) -> EvalResult:
@@ -482,12 +509,13 @@ def robustness(
     seed: int = 0,
     network: nn.Module | None = None,
     env: Env = None,
+    on_chunk: Callable[[int], None] | None = None,
 ) -> Robustness:
     """Plays every policy in every physics setting, as one compiled program.
 
     Cell (g, s, p) holds the very episodes of `evaluate(policy (g, s), episodes, max_steps,
-    env=<env with setting p>, seed=seed)` where that plays them in one chunk (at most
-    `STEPS_AT_ONCE` steps): the same initial states and uniforms, the same returns.
+    env=<env with setting p>, seed=seed)`: the same initial states and uniforms, in the same
+    chunks of episodes, the same returns.
     The runs (a policy in a setting) play side by side on the last axis of every array, `BLOCK`
     at a time. Parameters and physics are arguments of the program: other policies and values of
     the same shapes compile nothing.
@@ -505,6 +533,8 @@ def robustness(
         `SweepResult`'s own, else the environment's default network (`TrainConfig.network`).
       env: a name of `envs.MODULES` or an environment's params: the physics that the settings
         modify; by default a `SweepResult`'s environment, else CartPole-v1.
+      on_chunk: optional: called on the host after each chunk of episodes with the episodes
+        played so far (progress).
 
     Returns:
       `Robustness` with returns `[G, S, P, E]` and the P settings.
@@ -512,7 +542,8 @@ def robustness(
     Raises:
       ValueError: one line naming the argument, for policies of other shapes than `network`'s, a
         bad `env_grid` (`physics_settings`), an argument out of range, episodes that need more
-        memory than the machine's (`budget.evaluation_bytes`), or a policy that plays an action
+        memory than the machine's (a chunk's `budget.evaluation_bytes` for a block of runs, and
+        every return kept twice in float64), or a policy that plays an action
         other than 0 or 1.
     """
     check_int("episodes", episodes)
@@ -528,20 +559,22 @@ def robustness(
     function, policy_params = _split_policies(policies, network, env_params)
     grid_shape = (1, 1) if function else jax.tree.leaves(policy_params)[0].shape[:2]
     runs = math.prod(grid_shape) * len(settings)
-    # A block of runs plays at once; the returns of every run are kept.
-    needed = budget.evaluation_bytes(episodes, max_steps, BLOCK) + runs * episodes * 8
+    chunk = chunk_episodes(episodes, max_steps)
+    # A block of runs plays a chunk at once; the returns of every run are kept, twice as they are
+    # put together.
+    needed = budget.evaluation_bytes(chunk, max_steps, BLOCK) + runs * episodes * 16
     budget.check_fits(needed, "episodes", f"playing {episodes} episodes of at most {max_steps} "
-                      f"steps, {BLOCK} runs at once of {runs}")
+                      f"steps in each of {runs} runs, {chunk} in each of {BLOCK} runs at once")
     physics = {name: np.asarray([getattr(env_params.replace(**setting), name)
                                  for setting in settings], jnp.result_type(float))
                for name in envs.physics(envs.module_of(env_params))}
-    returns, invalid = _robustness_returns(
-        jax.random.PRNGKey(seed),
-        jax.tree.map(lambda leaf: leaf.reshape(-1, *leaf.shape[2:]), policy_params), physics,
-        env_params, None if function else network, function, episodes, max_steps)
-    rollout.check_played_actions(invalid, env_params)
-    return Robustness(np.asarray(returns, np.float64).reshape(*grid_shape, *returns.shape[1:]),
-                      settings)
+    flat_params = jax.tree.map(lambda leaf: leaf.reshape(-1, *leaf.shape[2:]), policy_params)
+    returns = _in_chunks(
+        lambda key, start, count: _robustness_returns(
+            key, flat_params, physics, env_params, None if function else network, function, chunk,
+            max_steps),
+        jax.random.PRNGKey(seed), episodes, chunk, env_params, on_chunk)
+    return Robustness(returns.reshape(*grid_shape, *returns.shape[1:]), settings)
 
 
 def _split_policies(

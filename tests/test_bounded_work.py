@@ -111,3 +111,17 @@ def test_the_command_shows_the_chunks_done_unless_quiet(monkeypatch, capsys, qui
     assert cli.run_command(args) == 0
     shown = [line.split(" [")[0] for line in capsys.readouterr().err.splitlines()]
     assert shown == ([] if quiet else ["episodes: 4/12", "episodes: 8/12", "episodes: 12/12"])
+
+
+def test_robustness_plays_the_chunks_of_evaluate(monkeypatch):
+    from jaxpg import evaluation
+
+    monkeypatch.setattr(evaluation, "STEPS_AT_ONCE", 500)  # chunks of 4 episodes of 100 steps
+    done = []
+    played = robustness(policies.basic_policy, {"length": [0.5, 1.0]}, episodes=12,
+                        max_steps=100, on_chunk=done.append)
+    assert done == [4, 8, 12]
+    for p, length in enumerate([0.5, 1.0]):
+        alone = evaluate(policies.basic_policy, episodes=12, max_steps=100,
+                         env=cartpole.V1.replace(length=length))
+        np.testing.assert_array_equal(played.returns[0, 0, p], alone.returns)
