@@ -17,6 +17,7 @@ import re
 import signal
 import socket
 import sys
+import tempfile
 import threading
 import time
 import types
@@ -228,9 +229,12 @@ def _enable_compilation_cache(disabled: bool, whole_programs: bool = False) -> N
     from jaxpg import atomic_files
 
     try:
-        atomic_files.private_directory(cache / "xla")
-    except OSError:
-        pass  # JAX then keeps nothing there, and says so
+        with tempfile.TemporaryFile(dir=atomic_files.private_directory(cache / "xla")):
+            pass  # permissions alone do not tell (a read-only file system, root)
+    except OSError as error:  # JAX would warn of each entry, as if damaged
+        print(f"{PROG}: warning: keeping no compiled programs in {cache / 'xla'}: it cannot be "
+              f"used ({error.strerror})", file=sys.stderr)
+        return
     jax.config.update("jax_compilation_cache_dir", str(cache / "xla"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

@@ -465,3 +465,16 @@ def test_a_cache_home_that_is_a_file_means_training_with_one_warning(tmp_path):
         f"keeping no compiled programs in {tmp_path}/cache/jaxpg/programs: it cannot be used "
         f"(Not a directory)"]
     assert (tmp_path / "out" / checkpoint.FILENAME).is_file()
+
+
+def test_jaxs_cache_where_the_cache_home_is_a_file_is_left_off_with_one_warning(
+        tmp_path, monkeypatch, capsys):
+    """JAX would warn of each of its entries as unreadable (`reproduce`'s 21), as if damaged."""
+    (tmp_path / "cache").write_text("a file")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    previous = jax.config.jax_compilation_cache_dir
+    cli._enable_compilation_cache(False)
+    assert jax.config.jax_compilation_cache_dir == previous
+    assert capsys.readouterr().err == (f"jaxpg: warning: keeping no compiled programs in "
+                                       f"{tmp_path}/cache/jaxpg/xla: it cannot be used "
+                                       f"(Not a directory)\n")
