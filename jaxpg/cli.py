@@ -594,6 +594,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         raise ValueError("backend: gymnasium plays one policy in one physics setting; several "
                          "policies, settings or --out are played in jaxpg")
     if args.out is not None:
+        _check_not_replaced(args.out, args.policy)
         atomic_files.check_out_dir(args.out)
     with _chunk_progress(args) as on_chunk:
         result = robustness(policies, values, episodes=args.episodes, max_steps=args.max_steps,
@@ -607,6 +608,16 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
         with atomic_files.staged(args.out) as stage:
             _write_robustness(stage, result, values, args)
         print(f"wrote {args.out}/: robustness.json, robustness.csv, robustness.png")
+
+
+def _check_not_replaced(out: str, policy: str) -> None:
+    """A ValueError naming `out` where it holds the checkpoint `policy`, which writing `out` would
+    replace (nothing for the basic policy)."""
+    target = pathlib.Path(out).resolve()
+    source = pathlib.Path(policy).resolve()
+    if policy != "basic" and (source == target or target in source.parents):
+        raise ValueError(f"out: {out} holds {policy}, the policies evaluated, which writing the "
+                         f"results would replace; choose another folder")
 
 
 def _chunk_progress(args: argparse.Namespace

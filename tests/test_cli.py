@@ -478,3 +478,15 @@ def test_jaxs_cache_where_the_cache_home_is_a_file_is_left_off_with_one_warning(
     assert capsys.readouterr().err == (f"jaxpg: warning: keeping no compiled programs in "
                                        f"{tmp_path}/cache/jaxpg/xla: it cannot be used "
                                        f"(Not a directory)\n")
+
+
+@pytest.mark.parametrize("policy, out", [("", ""), ("policies.msgpack", ""), ("", "..")])
+def test_evaluate_refuses_an_out_that_holds_the_policies_evaluated(sweep_folder, capsys, policy,
+                                                                    out):
+    """Writing the results there would replace the sweep, its policies included."""
+    before = {p.name: p.read_bytes() for p in sweep_folder.iterdir()}
+    status = cli.run_command(["evaluate", "--policy", str(sweep_folder / policy), "--episodes",
+                              "3", "--max-steps", "10", "--out", str(sweep_folder / out)])
+    lines = capsys.readouterr().err.splitlines()
+    assert status == 2 and len(lines) == 1 and "the policies evaluated, which writing" in lines[0]
+    assert {p.name: p.read_bytes() for p in sweep_folder.iterdir()} == before
