@@ -23,7 +23,7 @@ from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from jaxpg import budget, cartpole, envs, rng, rollout, sweeps, train_config
 from jaxpg.policies import init_network, network_policy
 from jaxpg.types import Action, Observation, Params, Policy, PRNGKey
-from jaxpg.validation import check_choice, check_int
+from jaxpg.validation import check_choice, check_finite, check_int, check_representable
 
 BACKENDS = ("jaxpg", "gymnasium")
 # Steps of episodes (episodes x max_steps) that `evaluate` plays at once in jaxpg, 80 MiB in float32
@@ -206,8 +206,9 @@ def evaluate(
       ValueError: one line naming the argument, for a policy that is not callable, an argument out
         of range, episodes that need more memory than the machine's (a chunk's
         `budget.evaluation_bytes`, and every return kept twice in float64),
-        `init_states` of another shape than `[E, 4]` or with backend "gymnasium" or another
-        environment, or a policy that plays an action the environment does not have.
+        `init_states` of another shape than `[E, 4]`, not finite in JAX's default float, or with
+        backend "gymnasium" or another environment, or a policy that plays an action the
+        environment does not have.
     """
     if not callable(policy):
         raise ValueError(f"policy: must be a callable (obs, u) -> action, got {policy!r}")
@@ -325,7 +326,10 @@ def _init_state(init_states: npt.ArrayLike, episodes: int, env: Env) -> cartpole
     shape = np.shape(init_states)
     if shape != (episodes, 4):
         raise ValueError(f"init_states: expected shape ({episodes}, 4), got {shape}")
-    return cartpole.CartPoleState.from_array(np.asarray(init_states))
+    # A NaN state never falls: its episode would last to the time limit.
+    floats = jax.dtypes.canonicalize_dtype(float)
+    checked = check_representable("init_states", check_finite("init_states", init_states), floats)
+    return cartpole.CartPoleState.from_array(checked)
 
 
 def _as_argument(policy: Policy) -> Policy:
