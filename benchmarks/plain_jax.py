@@ -32,10 +32,15 @@ class MLP(nn.Module):
 
 def make_train(network: nn.Module, iterations: int = 150, episodes: int = 10,
                max_steps: int = 200, discount: float = 0.95,
-               learning_rate: float = 0.01) -> Callable[[jax.Array], tuple]:
-    """`train(seeds [S]) -> (params, mean returns [S, iterations])`, one jitted program."""
+               learning_rate: float = 0.01,
+               optimizer: optax.GradientTransformation | None = None,
+               ) -> Callable[[jax.Array], tuple]:
+    """`train(seeds [S]) -> (params, mean returns [S, iterations])`, one jitted program.
+
+    The optimizer is Adam at `learning_rate` unless `optimizer` is given.
+    """
     env_params = cartpole.CartPoleParams()
-    optimizer = optax.adam(learning_rate)
+    optimizer = optax.adam(learning_rate) if optimizer is None else optimizer
 
     def rollout(params, key):
         key_reset, key_steps = jax.random.split(key)
