@@ -380,7 +380,8 @@ def cmd_train(args: argparse.Namespace) -> None:
     final = float(last_mean(result.metrics.mean_return))
     diverged = int(first_nonfinite(result.metrics))  # train() has warned of it
     with atomic_files.staged(out) as stage:
-        checkpoint.save(stage / checkpoint.FILENAME, result.policy_params, config, result.metrics)
+        checkpoint.save(stage / checkpoint.FILENAME, result.policy_params, config, result.metrics,
+                        critic_params=result.critic_params)
         summary = {"seed": args.seed, "config": checkpoint.config_to_dict(config),
                    "last_10_mean_return": final, "seconds": seconds,
                    "first_nonfinite_iteration": diverged if diverged >= 0 else None,

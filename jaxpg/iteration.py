@@ -527,16 +527,21 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
     params, opt_state = jax.eval_shape(
         lambda key: init_run(config, key, config.hyperparams),
         jax.ShapeDtypeStruct((2,), jnp.uint32))
-    step = jax.eval_shape(lambda p: optimizer.update(p, optimizer.init(p), p), params)
+    try:
+        state = jax.eval_shape(optimizer.init, params)
+        step = jax.eval_shape(lambda p: optimizer.update(p, optimizer.init(p), p), params)
+    except Exception as error:  # the optimizer's own code, on these parameters' shapes
+        raise ValueError(f"optimizer: cannot step the parameters, of shapes "
+                         f"{jax.tree.map(lambda leaf: leaf.shape, params)}: "
+                         f"{type(error).__name__}: {error}".splitlines()[0]) from None
     if not (isinstance(step, tuple) and len(step) == 2):
         raise ValueError(f"optimizer: its update must return (updates, state), got "
                          f"{type(step).__name__}")
-    shapes = [jax.tree.map(lambda leaf: leaf.shape, tree) for tree in (params, step[0])]
-    # jaxlib's stubs leave PyTreeDef unresolved, so mypy cannot compare two of them.
-    if (jax.tree.structure(params) != jax.tree.structure(step[0])  # type: ignore[operator]
-            or shapes[0] != shapes[1]):
-        raise ValueError(f"optimizer: its update must return updates of the parameters' tree "
-                         f"and shapes, {shapes[0]}, got {shapes[1]}")
+    _check_alike("updates", params, step[0])
+    if not all(jnp.issubdtype(leaf.dtype, jnp.floating) for leaf in jax.tree.leaves(step[0])):
+        raise ValueError("optimizer: its update must return floating updates, got "
+                         f"{sorted({str(leaf.dtype) for leaf in jax.tree.leaves(step[0])})}")
+    _check_alike("state", state, step[1])
     floats = jnp.result_type(float)
     hyper = jax.tree.map(lambda leaf: jax.ShapeDtypeStruct((), leaf.dtype),
                          config.hyperparams.per_run())
@@ -563,6 +568,26 @@ def check_config(config: TrainConfig) -> tuple[str, ...]:
     metrics = jax.eval_shape(functools.partial(learn_run, config), params, opt_state, batch,
                              hyper, jax.ShapeDtypeStruct((2,), jnp.uint32))[-1]
     return tuple(sorted(metrics))
+
+
+def _check_alike(what: str, expected: Any, got: Any) -> None:
+    """Checks that the optimizer's update returned `what` ("updates" or "state") like `expected`.
+
+    Raises:
+      ValueError: naming the optimizer, with both trees' shapes.
+    """
+    def shape(leaf: Any) -> Any:
+        """A leaf's shape, with its dtype for the state (updates are cast to the parameters')."""
+        return leaf.shape if what == "updates" else (leaf.shape, str(leaf.dtype))
+
+    shapes = [jax.tree.map(shape, tree) for tree in (expected, got)]
+    # jaxlib's stubs leave PyTreeDef unresolved, so mypy cannot compare two of them.
+    if (jax.tree.structure(expected) != jax.tree.structure(got)  # type: ignore[operator]
+            or shapes[0] != shapes[1]):
+        source = ("the parameters' tree and shapes" if what == "updates"
+                  else "its init's tree, shapes and dtypes")
+        raise ValueError(f"optimizer: its update must return {what} of {source}, {shapes[0]}, "
+                         f"got {shapes[1]}")
 
 
 def _is_scalar(leaf: Any) -> bool:

@@ -231,6 +231,17 @@ def check_seeds(seeds: Seeds) -> np.ndarray:
     return seeds.astype(np.uint32)
 
 
+def check_on_iteration(on_iteration: OnIteration | None) -> None:
+    """Checks that `on_iteration` is a function or None.
+
+    Raises:
+      ValueError: naming `on_iteration`, for anything else.
+    """
+    if on_iteration is not None and not callable(on_iteration):
+        raise ValueError(f"on_iteration: must be a function (iteration, metrics) -> None or "
+                         f"None, got {type(on_iteration).__name__}")
+
+
 def check_arguments(
     config: train_config.TrainConfig,
     seeds: Seeds,
@@ -331,6 +342,7 @@ def sweep(
     seeds, settings = check_arguments(config, seeds, grid, memory_budget, eval_episodes)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
     check_choice("eval_physics", eval_physics, EVAL_PHYSICS)
+    check_on_iteration(on_iteration)
     if init_params is not None:
         init_params = reinforce.check_init_params(config, init_params)
     if init_critic_params is not None:
@@ -403,6 +415,7 @@ def train(config: train_config.TrainConfig = train_config.TrainConfig(), seed: i
         the policy's parameters; each before anything compiles.
     """
     check_int("seed", seed, 0, 2**32)
+    check_on_iteration(on_iteration)
     first_run = None if on_iteration is None else (
         lambda i, metrics: on_iteration(i, jax.tree.map(lambda leaf: leaf[0], metrics)))
     result = sweep(config, [seed], show_progress=show_progress, on_iteration=first_run,

@@ -254,6 +254,7 @@ def test_train_and_sweep_take_a_loss_an_entropy_bonus_and_a_linear_policy(tmp_pa
     assert (out / "metrics.csv").read_text().splitlines()[0].endswith("entropy,value_loss")
     loaded = checkpoint.load(out)
     assert (loaded.config.loss, loaded.config.hidden) == ("baseline", ())
+    assert set(loaded.critic_params["params"]) == {"weights", "bias"}  # kept to warm-start it
     sweep_out = tmp_path / "sweep"
     assert cli.run_command(["sweep", *SMALL, "--seeds", "2", "--loss", "reward-to-go",
                      "--entropy-coef", "0,0.01", "--eval-episodes", "4",

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from conftest import xla_compiles
 
-from jaxpg import evaluate, policies
+from jaxpg import TrainConfig, evaluate, policies, sweep, train
 
 
 @pytest.mark.parametrize("value, match", [
@@ -16,4 +16,12 @@ def test_initial_states_that_the_episodes_cannot_start_from_are_refused(value, m
     states = [[0.0, 0.0, 0.01, 0.0], [0.0, 0.0, 0.0, value]]
     with xla_compiles() as compiled, pytest.raises(ValueError, match=f"^init_states: {match}"):
         evaluate(policies.basic_policy, episodes=2, init_states=states)
+    assert not compiled
+
+
+@pytest.mark.parametrize("trainer", [train, lambda config, **kw: sweep(config, [0, 1], **kw)])
+def test_an_on_iteration_that_is_no_function_is_refused(trainer):
+    with xla_compiles() as compiled, pytest.raises(
+            ValueError, match="^on_iteration: must be a function .* or None, got int$"):
+        trainer(TrainConfig(iterations=1), on_iteration=5)
     assert not compiled

@@ -154,8 +154,49 @@ def _updates_alone(learning_rate):
         sgd.init, lambda grads, state, params=None: sgd.update(grads, state, params)[0])
 
 
+def _state_in_a_list(learning_rate):
+    """SGD with momentum whose update returns its state inside a list."""
+    sgd = optax.sgd(learning_rate, momentum=0.9)
+
+    def update(grads, state, params=None):
+        updates, state = sgd.update(grads, state, params)
+        return updates, [state]
+
+    return optax.GradientTransformation(sgd.init, update)
+
+
+def _integer_updates(learning_rate):
+    """SGD whose updates are rounded to integers (which would leave every weight where it is)."""
+    sgd = optax.sgd(learning_rate)
+
+    def update(grads, state, params=None):
+        updates, state = sgd.update(grads, state, params)
+        return jax.tree.map(lambda leaf: leaf.astype(jnp.int32), updates), state
+
+    return optax.GradientTransformation(sgd.init, update)
+
+
+def _update_of_vectors_only(learning_rate):
+    """SGD whose update fails on a parameter with no axes (as optax's sm3 does on a bias)."""
+    sgd = optax.sgd(learning_rate)
+
+    def update(grads, state, params=None):
+        if any(leaf.ndim == 0 for leaf in jax.tree.leaves(grads)):
+            raise IndexError("list index out of range")
+        return sgd.update(grads, state, params)
+
+    return optax.GradientTransformation(sgd.init, update)
+
+
 @pytest.mark.parametrize("fields, match", [
     ({"policy": IntegerLogits()}, "policy: the module's logits must be floating, got int32$"),
+    ({"optimizer": _update_of_vectors_only, "loss": "baseline"},  # the linear critic's bias: ()
+     r"optimizer: cannot step the parameters, of shapes \{'critic': .*'bias': \(\).*: "
+     r"IndexError: list index out of range$"),
+    ({"optimizer": _state_in_a_list},
+     r"optimizer: its update must return state of its init's tree, shapes and dtypes, "),
+    ({"optimizer": _integer_updates},
+     r"optimizer: its update must return floating updates, got \['int32'\]$"),
     ({"optimizer": _updates_as_a_list},
      "optimizer: its update must return updates of the parameters' tree and shapes, "),
     ({"optimizer": _updates_as_a_list, "loss": "baseline"},
