@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from conftest import xla_compiles
 
-from jaxpg import TrainConfig, evaluate, policies, sweep, train
+from jaxpg import TrainConfig, envs, evaluate, policies, sweep, train
 
 
 @pytest.mark.parametrize("value, match", [
@@ -24,4 +24,16 @@ def test_an_on_iteration_that_is_no_function_is_refused(trainer):
     with xla_compiles() as compiled, pytest.raises(
             ValueError, match="^on_iteration: must be a function .* or None, got int$"):
         trainer(TrainConfig(iterations=1), on_iteration=5)
+    assert not compiled
+
+
+@pytest.mark.parametrize("env, field, value, match", [
+    ("Acrobot-v1", "link_mass_1", 1e39, r"must be at most 3\.403e\+38 in magnitude"),  # inf in f32
+    ("MountainCar-v0", "force", 1e39, r"must be at most 3\.403e\+38 in magnitude"),
+    ("Pendulum-v1", "dt", 1e-300, r"must be at least 1\.175e-38"),  # 0 in float32: a frozen pole
+    ("MountainCarContinuous-v0", "power", 1e-300, r"must be at least 1\.175e-38"),
+])
+def test_physics_that_float32_cannot_hold_are_refused_on_every_task(env, field, value, match):
+    with xla_compiles() as compiled, pytest.raises(ValueError, match=f"^{field}: {match}"):
+        TrainConfig(env=envs.MODULES[env].make_params(env, **{field: value}))
     assert not compiled

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpg.types import ArrayLike
-from jaxpg.validation import check_choice, check_finite
+from jaxpg.validation import check_choice, check_finite, check_representable
 
 MAX_STEPS_LIMIT = 2**31  # episodes count their steps in int32
 
@@ -52,16 +52,20 @@ def check_numbers(env_params: EnvParams, kind: type, positive: tuple[str, ...]) 
 
     Raises:
       ValueError: naming the first invalid field: `env_params` not a `kind`, a value that is not
-        finite, one of `positive` at or below 0, or a `max_steps` that is not an integer in
-        [1, MAX_STEPS_LIMIT).
+        finite, one of `positive` at or below 0, a `max_steps` that is not an integer in
+        [1, MAX_STEPS_LIMIT), or a float that JAX's default float cannot hold
+        (`check_representable`: 1e39 overflows float32, and a positive 1e-300 is 0 there).
     """
     if not isinstance(env_params, kind):
         raise ValueError(f"env_params: expected a {kind.__name__}, got "
                          f"{type(env_params).__name__}")
+    floats = jax.dtypes.canonicalize_dtype(float)  # what `step` computes in
     for field in dataclasses.fields(env_params):
         value = concrete(getattr(env_params, field.name))
         if field.metadata.get("pytree_node", True) and value is not None:
             check_finite(field.name, value)
+            if value.dtype.kind == "f":
+                check_representable(field.name, value, floats, field.name in positive)
     steps = concrete(env_params.max_steps)
     if steps is not None and not (steps.dtype.kind in "iu" and np.all(steps < MAX_STEPS_LIMIT)):
         raise ValueError(f"max_steps: must be an integer in [1, 2**31), got {steps}")
