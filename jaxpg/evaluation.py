@@ -459,6 +459,52 @@ class Robustness(NamedTuple):
         """`[G, S, P]` highest return."""
         return self.returns.max(axis=-1)
 
+    def bootstrap_ci(self, setting: int = 0, statistic: Any = "iqm",
+                     **interval: Any) -> tuple[float, float]:
+        """A bootstrap interval of an aggregate of one grid setting's policies over every physics.
+
+        The scores are `mean[setting]`, `[S, P]`; the same S policies play every physics setting,
+        so whole policies are resampled (`stats.bootstrap_ci(..., paired=True)`).
+
+        Args:
+          setting: g, the grid setting whose S policies are scored.
+          statistic: as `stats.bootstrap_ci`'s ("iqm", "mean", "median" or a function).
+          **interval: `confidence`, `reps`, `seed`, as `stats.bootstrap_ci` takes them.
+
+        Returns:
+          (low, high) floats.
+        """
+        from jaxpg import stats  # here: stats imports scipy, which evaluating does not need
+        return stats.bootstrap_ci(self.mean[setting], statistic, paired=True, **interval)
+
+    def improvement_ci(self, other: "Robustness", setting: int = 0, other_setting: int = 0,
+                       **interval: Any) -> tuple[float, float]:
+        """An interval of P(a policy of this table beats one of `other`) over the physics settings.
+
+        For two tables of the same seeds in the same physics settings (two grid settings of one
+        sweep, or two sweeps' tables): policy s of each is drawn together, whole
+        (`stats.improvement_ci(..., paired=True)`).
+
+        Args:
+          other: the `Robustness` of the policies compared against, in the same settings.
+          setting: g of this table.
+          other_setting: g of `other`.
+          **interval: `confidence`, `reps`, `seed`, as `stats.improvement_ci` takes them.
+
+        Returns:
+          (low, high) floats.
+
+        Raises:
+          ValueError: naming `other`, for tables of other physics settings or seeds counts.
+        """
+        from jaxpg import stats
+        if other.settings != self.settings or other.returns.shape[1] != self.returns.shape[1]:
+            raise ValueError(f"other: must play the same physics settings with as many seeds, "
+                             f"got {len(other.settings)} settings x {other.returns.shape[1]} "
+                             f"seeds against {len(self.settings)} x {self.returns.shape[1]}")
+        return stats.improvement_ci(self.mean[setting], other.mean[other_setting], paired=True,
+                                    **interval)
+
 
 def physics_label(setting: Mapping[str, float], none: str = "default physics") -> str:
     """A physics setting in words, e.g. "length=0.5, masspole=0.1"; `none` for no field."""

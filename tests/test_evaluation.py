@@ -12,8 +12,14 @@ import scipy.stats
 from conftest import xla_compiles
 from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
 
-from jaxpg import cartpole, policies
-from jaxpg.evaluation import EvalResult, evaluate, gymnasium_reset_states, robustness
+from jaxpg import cartpole, policies, stats
+from jaxpg.evaluation import (
+    EvalResult,
+    Robustness,
+    evaluate,
+    gymnasium_reset_states,
+    robustness,
+)
 from jaxpg.policies import basic_policy
 
 
@@ -254,3 +260,20 @@ def test_actions_other_than_0_or_1_are_refused_not_played_as_0(policy, message):
     assert str(error.value).startswith(message[:40])
     assert evaluate(lambda obs, u: obs[:, 2] > 0, episodes=10, max_steps=20).mean == (
         evaluate(basic_policy, episodes=10, max_steps=20).mean)  # bools are actions too
+
+
+def test_robustness_intervals_resample_whole_policies():
+    """The same policies play every setting: a good policy is good in all of them, so resampling
+    policies whole gives wider intervals than resampling each setting on its own."""
+    rng = np.random.default_rng(0)
+    skill = rng.normal(100, 30, size=(2, 16, 1, 1))  # [G, S]: each policy's own level
+    returns = skill + np.array([0, 20, 40, 60])[:, None] + rng.normal(0, 1, (2, 16, 4, 5))
+    table = Robustness(returns, [{"length": v} for v in (0.5, 1.0, 1.5, 2.0)])
+    low, high = table.bootstrap_ci(1, "mean", seed=3)
+    assert (low, high) == stats.bootstrap_ci(returns[1].mean(-1), "mean", seed=3, paired=True)
+    stratified = stats.bootstrap_ci(returns[1].mean(-1), "mean", seed=3)
+    assert high - low > 2 * (stratified[1] - stratified[0])
+    assert table.improvement_ci(table, 1, 0) == stats.improvement_ci(
+        returns[1].mean(-1), returns[0].mean(-1), paired=True)
+    with pytest.raises(ValueError, match="^other: must play the same physics settings"):
+        table.improvement_ci(Robustness(returns[:, :, :2], table.settings[:2]))
