@@ -41,7 +41,15 @@ BOOK_LAST_ITERATION = 199.6  # "Iteration: 150/150, mean rewards: 199.6"
 
 
 class _Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line on stderr and exit status 2, no usage."""
+    """An argument parser whose errors are one line on stderr and exit status 2, no usage.
+
+    A value that starts with a minus and a digit is a value, `--gravity -1e3` included (older
+    Pythons' argparse took only `-1` and `-1.5` for numbers, and `-1e3` for an unknown flag).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
 
     def error(self, message: str) -> NoReturn:
         """Exits with status 2 and `message` on one line."""

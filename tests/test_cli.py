@@ -88,6 +88,8 @@ def test_sweep_writes_summary_and_picture(tmp_path):
     (["train", "--hidden", "x"], "hidden"),
     (["train", "--loss", "a2c"], "--loss"),
     (["train", "--entropy-coef", "-1"], "entropy_coef"),
+    (["train", "--entropy-coef", "-1e-3"], "entropy_coef"),  # a value, not an unknown flag
+    (["train", "--masspole", "-.5"], "masspole"),
     (["sweep", "--entropy-coef", "0,inf"], "entropy_coef"),
     (["sweep", "--seeds", "0"], "seeds"),
     (["sweep", "--discount", "0.9,2"], "discount"),
