@@ -98,14 +98,15 @@ def _one_run(r, keep_axis, policy_params, transitions, advantages):
 
 def test_accumulated_gradient_of_runs_side_by_side():
     """Three runs on the trailing axis, 25 steps (a padded last chunk): each run's loss and gradient
-    are those of `reinforce_loss`, and bit for bit those it gets alone."""
+    are those of `reinforce_loss`, and bit for bit those it gets alone, compiled as training
+    compiles them."""
     network, *played = _runs_side_by_side(TrainConfig(episodes=3, max_steps=25), 3, 5)
     lengths = np.asarray(played[1].alive.sum(axis=0))
     assert lengths.min() < 25 and lengths.max() > 5  # some episodes end, some last
-    loss, grads = hand_gradient.loss_and_grad(played[0], network, *played[1:])
+    compiled = jax.jit(lambda params, *rest: hand_gradient.loss_and_grad(params, network, *rest))
+    loss, grads = compiled(*played)
     for r in range(3):
-        params, mine, weights = _one_run(r, True, *played)
-        alone = hand_gradient.loss_and_grad(params, network, mine, weights)
+        alone = compiled(*_one_run(r, True, *played))
         chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., r : r + 1],
                                                         (loss, grads)))
         params, mine, weights = _one_run(r, False, *played)
