@@ -109,17 +109,8 @@ def test_ppo_of_several_updates_trains_alone_as_in_a_sweep_to_rounding():
                              jax.tree.leaves(jax.tree.map(lambda leaf: leaf[0, s],
                                                           together.policy_params))):
             np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
-
-
-def test_ppo_learns_to_balance_in_a_few_iterations():
-    """PPO with 4 epochs of 2 minibatches, a Dense(32, tanh) policy and critic (docs/
-    performance.md: median last-10 return 200 over 32 seeds at 150 iterations)."""
-    config = TrainConfig(iterations=50, loss=losses.PPO(losses.ValueNetwork((32,))),
-                         epochs=4, minibatches=2, hidden=(32,), activation="tanh",
-                         discount=0.99)
-    result = sweep(config, seeds=range(4), show_progress=False)
-    assert np.median(result.summary.final_return) >= 195
-    assert set(result.metrics.extra) == {"approx_kl", "clip_fraction", "value_loss"}
+    # That it learns to balance is the README's example (tests/test_readme.py).
+    assert set(together.metrics.extra) == {"approx_kl", "clip_fraction", "value_loss"}
 
 
 class BookModule(nn.Module):
