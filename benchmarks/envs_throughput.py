@@ -3,15 +3,19 @@
 For each of Acrobot-v1, MountainCar-v0, Pendulum-v1 and MountainCarContinuous-v0 (`jaxpg.envs`),
 and N environments stepped together with auto-reset:
 
-- jaxpg: `lax.scan` over T steps of `vmap(step)`, jitted; one program per (env, N, T) whose scan
-  length T is chosen so that a run takes about `--seconds` (or fixed with `--steps`); compile
-  time is reported apart. Random actions (uniform over the actions, or over [ACTION_LOW,
-  ACTION_HIGH]) are drawn inside the program and so are counted, and so are the reset states,
-  drawn for every environment on every step and taken where an episode ended, as gymnax's
-  auto-reset does.
+- jaxpg: `rollout.stream` with `rollout.random_policy` (uniform over the actions, or over
+  [ACTION_LOW, ACTION_HIGH]), jitted, as `env_throughput.py` measures CartPole; one program per
+  (env, N, T) whose scan length T is chosen so that a run takes about `--seconds` (or fixed with
+  `--steps`); compile time is reported apart. The random actions and the reset states are drawn
+  inside the program and so are counted; the stream draws reset states for every environment once
+  every `rollout.STREAM_CHUNK` steps (and again for one that resets twice in them), not at every
+  step.
 - gymnax (when importable): the same id with `vmap` over environments and `lax.scan` over time;
-  the auto-reset is gymnax's own `step`, the actions its action space's `sample`, inside the
-  program as for jaxpg.
+  the auto-reset is gymnax's own `step`, which draws a reset state for every environment at every
+  step, the actions its action space's `sample`, inside the program as for jaxpg.
+- Every program runs under the jaxpg command's XLA setting (`xla_options.configure_xla`), set
+  before JAX starts: XLA compiles a `while` loop of few bytes into one function rather than
+  kernel by kernel.
 - gymnasium-vector: `gymnasium.make_vec(id, N, vectorization_mode="sync")` (Gymnasium has no
   numpy vector env of these four), auto-resetting in its default next-step mode. Actions for all
   N environments are drawn with one `action_space.sample()` per step, outside the timed region:
@@ -23,35 +27,33 @@ and N environments stepped together with auto-reset:
 """
 
 import argparse
+import functools
 import time
 
 import common
 import env_throughput  # its timing and ratios; it also gives JAX one CPU device per core
-import gymnasium as gym
-import jax
-import jax.numpy as jnp
 
-from jaxpg.envs import MODULES
+from jaxpg import xla_options
+
+# Before JAX starts its backends: the jaxpg command's XLA setting, for every program of the
+# process, gymnax's too. It compiles a stream's loop into one function rather than kernel by
+# kernel (docs/performance.md).
+xla_options.configure_xla()
+
+import gymnasium as gym  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+from jaxpg import cartpole, rollout  # noqa: E402
+from jaxpg.envs import MODULES  # noqa: E402
+
+# CartPole's two presets are measured by env_throughput.py.
+TASKS = tuple(name for name, module in MODULES.items() if module is not cartpole)
 
 IMPLS = ("jaxpg", "gymnax", "gymnasium-vector")
 
 
 # ---------------------------------------------------------------- programs that step N envs T times
-
-
-def random_actions(module, key, num_envs):
-    """`[N]` random actions of `module`: uniform over its discrete actions or its action range."""
-    if hasattr(module, "NUM_ACTIONS"):
-        return jax.random.randint(key, (num_envs,), 0, module.NUM_ACTIONS)
-    return jax.random.uniform(key, (num_envs,), minval=module.ACTION_LOW,
-                              maxval=module.ACTION_HIGH)
-
-
-def where_done(done, fresh, stepped):
-    """The state `fresh` where `done` `[N]`, else `stepped` (leaves `[N, ...]`)."""
-    return jax.tree.map(
-        lambda new, old: jnp.where(done.reshape(done.shape + (1,) * (old.ndim - 1)), new, old),
-        fresh, stepped)
 
 
 def scan_program(reset_all, step_all, num_steps):
@@ -81,21 +83,10 @@ def scan_program(reset_all, step_all, num_steps):
 
 
 def jaxpg_program(module, num_envs, num_steps):
-    """N auto-resetting envs of `module`, T random steps (`scan_program`)."""
+    """N auto-resetting envs of `module`, T random steps: `rollout.stream`, jitted."""
     env_params = module.PRESETS[module.NAME]
-    reset = jax.vmap(module.reset, in_axes=(0, None))
-    step = jax.vmap(module.step, in_axes=(0, 0, None))
-
-    def reset_all(key):
-        return reset(jax.random.split(key, num_envs), env_params)[1]
-
-    def step_all(state, key):
-        key_action, key_reset = jax.random.split(key)
-        action = random_actions(module, key_action, num_envs)
-        _, stepped, reward, terminated, truncated = step(state, action, env_params)
-        return where_done(terminated | truncated, reset_all(key_reset), stepped), reward
-
-    return scan_program(reset_all, step_all, num_steps)
+    policy = functools.partial(rollout.random_policy, env_params=env_params)
+    return jax.jit(lambda key: rollout.stream(key, policy, env_params, num_envs, num_steps))
 
 
 def gymnax_program(gymnax, env_id, num_envs, num_steps):
@@ -162,8 +153,8 @@ def parse_args():
         description="Classic-control env steps per second, random actions")
     parser.add_argument("--quick", action="store_true",
                         help="short measurements (0.1 s, 1 repeat) to check that all runs")
-    parser.add_argument("--envs", default=",".join(MODULES),
-                        help=f"comma-separated subset of {', '.join(MODULES)}")
+    parser.add_argument("--envs", default=",".join(TASKS),
+                        help=f"comma-separated subset of {', '.join(TASKS)}")
     parser.add_argument("--sizes", default="1,256,4096",
                         help="comma-separated numbers of environments N")
     parser.add_argument("--impls", default=",".join(IMPLS),
@@ -179,7 +170,7 @@ def parse_args():
         args.seconds, args.repeats = 0.1, 1
     args.sizes = [int(n) for n in args.sizes.split(",")]
     args.envs, args.impls = args.envs.split(","), args.impls.split(",")
-    for option, chosen, allowed in (("--envs", args.envs, MODULES), ("--impls", args.impls,
+    for option, chosen, allowed in (("--envs", args.envs, TASKS), ("--impls", args.impls,
                                                                       IMPLS)):
         unknown = set(chosen) - set(allowed)
         if unknown:

@@ -1,5 +1,5 @@
 """Batched episodes of any environment (`lax.scan` over time, every episode at once), and
-CartPole's auto-reset streams.
+auto-reset streams of any environment.
 
 The environment is the module of the params given (`jaxpg.envs.module_of`): CartPole or another
 of `jaxpg.envs`. A policy for `rollout` is a function `(obs [E, K], u [E]) -> action [E]` acting
@@ -22,10 +22,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import cartpole, envs, rng, sums
-from jaxpg.cartpole import CartPoleParams, CartPoleState
 from jaxpg.types import Action, ArrayLike, Observation, Policy, PRNGKey
 
-# The policy of a stream, which draws its own random numbers: (obs `[N, 4]`, key) -> action `[N]`.
+# The policy of a stream, which draws its own random numbers: (obs `[N, K]`, key) -> action `[N]`.
 StreamPolicy = Callable[[Observation, PRNGKey], Action]
 
 _Tree = TypeVar("_Tree")
@@ -93,8 +92,10 @@ def reset_batch(key: PRNGKey, num: int, env_params: Any, repeat_to: int | None =
 
 
 def _select(done: jax.Array, old: _Tree, new: _Tree) -> _Tree:
-    """Per environment, `old` where done, else `new` (a frozen episode stays where it ended)."""
-    return jax.tree.map(lambda o, n: jnp.where(done, o, n), old, new)
+    """Per environment, `old` where `done` `[N]`, else `new` (leaves `[N, ...]`)."""
+    return jax.tree.map(
+        lambda o, n: jnp.where(done.reshape(done.shape + (1,) * (o.ndim - done.ndim)), o, n),
+        old, new)
 
 
 def _record(features: jax.Array, action: jax.Array, reward: jax.Array, alive: jax.Array
@@ -268,7 +269,7 @@ def check_played_actions(invalid_action: ArrayLike | None, env_params: Any = car
 class StreamState(NamedTuple):
     """Carry of an auto-reset stream of N environments."""
 
-    env_state: CartPoleState  # [N] leaves
+    env_state: Any  # the environment's state, [N] leaves
     prev_done: jax.Array  # [N] bool: the last step ended the episode, so the next one resets
 
 
@@ -279,24 +280,23 @@ class StreamStats(NamedTuple):
     total_return: jax.Array  # [] float sum of every reward of the stream
 
 
-def stream_reset(key: PRNGKey, num_envs: int, env_params: CartPoleParams
+def stream_reset(key: PRNGKey, num_envs: int, env_params: Any
                  ) -> tuple[Observation, StreamState]:
     """A fresh stream of N = `num_envs` environments.
 
     Args:
       key: PRNG key of the initial states.
       num_envs: N.
-      env_params: `CartPoleParams`.
+      env_params: the environment's params (`CartPoleParams` or another of `jaxpg.envs`).
 
     Returns:
-      (obs `[N, 4]`, `StreamState`), no environment due to reset.
+      (obs `[N, K]`, `StreamState`), no environment due to reset.
     """
     obs, state = reset_batch(key, num_envs, env_params)
     return obs, StreamState(state, jnp.zeros(num_envs, dtype=bool))
 
 
-def autoreset_step(key: PRNGKey, stream_state: StreamState, action: Action,
-                   env_params: CartPoleParams
+def autoreset_step(key: PRNGKey, stream_state: StreamState, action: Action, env_params: Any
                    ) -> tuple[Observation, StreamState, jax.Array, jax.Array, jax.Array]:
     """One step of N environments with Gymnasium's next-step autoreset (as `CartPoleVectorEnv`).
 
@@ -306,22 +306,22 @@ def autoreset_step(key: PRNGKey, stream_state: StreamState, action: Action,
     Args:
       key: PRNG key of the states of the environments that reset.
       stream_state: the `StreamState` of N environments.
-      action: int `[N]`, each 0 or 1.
-      env_params: `CartPoleParams`.
+      action: `[N]` actions of the environment (on CartPole each 0 or 1).
+      env_params: the environment's params (`CartPoleParams` or another of `jaxpg.envs`).
 
     Returns:
-      (obs `[N, 4]`, `StreamState`, reward `[N]`, terminated `[N]`, truncated `[N]`)
+      (obs `[N, K]`, `StreamState`, reward `[N]`, terminated `[N]`, truncated `[N]`)
     """
     _, fresh = reset_batch(key, stream_state.prev_done.shape[0], env_params)
     return _autoreset(fresh, stream_state, action, env_params)
 
 
-def _autoreset(fresh: CartPoleState, stream_state: StreamState, action: Action,
-               env_params: CartPoleParams
+def _autoreset(fresh: Any, stream_state: StreamState, action: Action, env_params: Any
                ) -> tuple[Observation, StreamState, jax.Array, jax.Array, jax.Array]:
     """`autoreset_step` with the states `fresh` `[N]` for the environments that reset."""
+    module = envs.module_of(env_params)
     prev_done = stream_state.prev_done
-    _, stepped, reward, terminated, truncated = jax.vmap(cartpole.step, in_axes=(0, 0, None))(
+    _, stepped, reward, terminated, truncated = jax.vmap(module.step, in_axes=(0, 0, None))(
         stream_state.env_state, action, env_params
     )
     state = _select(prev_done, fresh, stepped)
@@ -329,7 +329,7 @@ def _autoreset(fresh: CartPoleState, stream_state: StreamState, action: Action,
     terminated = terminated & ~prev_done
     truncated = truncated & ~prev_done
     return (
-        cartpole.observe(state),
+        module.observe(state),
         StreamState(state, terminated | truncated),
         reward,
         terminated,
@@ -337,46 +337,75 @@ def _autoreset(fresh: CartPoleState, stream_state: StreamState, action: Action,
     )
 
 
-def random_policy(obs: Observation, key: PRNGKey) -> Action:
-    """Pushes left or right with equal probability: 32 actions from each random 32-bit word.
+def random_policy(obs: Observation, key: PRNGKey, env_params: Any = cartpole.V1) -> Action:
+    """Uniformly random actions of the environment of `env_params` (CartPole's by default).
+
+    2**k discrete actions come from k-bit fields of random 32-bit words, 32 // k from each word
+    (CartPole's 32 actions from each word, one bit each); n others from one word each, its low
+    16 bits f giving `(f * n) >> 16`, each action's probability within 2**-16 of 1/n. Continuous
+    actions are uniform in the module's [ACTION_LOW, ACTION_HIGH), one word each.
 
     Args:
-      obs: `[..., 4]` observations, of which only the shape is read.
+      obs: `[..., K]` observations, of which only the shape and dtype are read.
       key: PRNG key.
+      env_params: the environment's params (a stream's policy takes two arguments:
+        `functools.partial(random_policy, env_params=...)` for another environment).
 
     Returns:
-      int32 actions `[...]`.
+      Actions `[...]`: int32 for a discrete environment, floats of `obs`'s dtype otherwise.
+
+    Raises:
+      ValueError: as it is traced, for more than 2**16 discrete actions that are not a power of
+        two.
     """
-    num = math.prod(obs.shape[:-1])
-    words = rng.bits(key, (-(-num // 32), 1))
-    actions = (words >> jnp.arange(32, dtype=jnp.uint32)) & 1
-    return actions.reshape(-1)[:num].reshape(obs.shape[:-1]).astype(jnp.int32)
+    module = envs.module_of(env_params)
+    shape = obs.shape[:-1]
+    if not envs.is_discrete(module):
+        return rng.uniform(key, shape, module.ACTION_LOW, module.ACTION_HIGH, obs.dtype)
+    n = module.NUM_ACTIONS
+    if n & (n - 1) == 0:
+        width = max(1, n.bit_length() - 1)
+        per_word = 32 // width
+    elif n <= 2**16:
+        # A word each: fields of one word interleave neighbours' actions, which XLA computes
+        # slower than a word per action unless the fields are single bits (docs/performance.md).
+        width, per_word = 16, 1
+    else:
+        raise ValueError(f"env_params: random_policy draws at most 2**16 actions that are not a "
+                         f"power of two, got {n}")
+    num = math.prod(shape)
+    words = rng.bits(key, (-(-num // per_word), 1))
+    fields = (words >> (jnp.arange(per_word, dtype=jnp.uint32) * width)) & ((1 << width) - 1)
+    # (f * n) >> width is f itself for n = 2**width (CartPole's bits), and 0 for n = 1.
+    actions = (fields * np.uint32(n)) >> width
+    return actions.reshape(-1)[:num].reshape(shape).astype(jnp.int32)
 
 
 STREAM_CHUNK = 8  # steps per draw of reset states: shorter than CartPole's shortest episode
 
 # A stream's carry within a chunk: obs, state, fresh reset states, which environments used theirs,
 # episodes and total return per environment.
-_StepCarry = tuple[Observation, StreamState, CartPoleState, jax.Array, jax.Array, jax.Array]
+_StepCarry = tuple[Observation, StreamState, Any, jax.Array, jax.Array, jax.Array]
 # Between chunks: obs, state, episodes, total return.
 _ChunkCarry = tuple[Observation, StreamState, jax.Array, jax.Array]
 
 
-def stream(key: PRNGKey, policy: StreamPolicy, env_params: CartPoleParams, num_envs: int,
+def stream(key: PRNGKey, policy: StreamPolicy, env_params: Any, num_envs: int,
            num_steps: int) -> tuple[StreamState, StreamStats]:
     """Runs `num_envs` auto-resetting environments for `num_steps` steps.
 
-    The policy of a stream draws its own random numbers: `(obs [N, 4], key) -> action [N]`, such
-    as `random_policy`, which takes 32 actions from each random word.
+    The policy of a stream draws its own random numbers: `(obs [N, K], key) -> action [N]`, such
+    as `random_policy`.
 
     Reset states are drawn once per environment every `STREAM_CHUNK` steps rather than every step:
-    an episode of the default CartPole lasts at least 8 steps, so an environment resets at most once
-    in a chunk. One that resets twice (with other `env_params`) draws again for that step.
+    an episode of the default CartPole lasts at least 8 steps (and of the other tasks far longer),
+    so an environment resets at most once in a chunk. One that resets twice (with other
+    `env_params`) draws again for that step.
 
     Args:
       key: PRNG key.
-      policy: `(obs [N, 4], key) -> action [N]`.
-      env_params: `CartPoleParams`.
+      policy: `(obs [N, K], key) -> action [N]`.
+      env_params: the environment's params (`CartPoleParams` or another of `jaxpg.envs`).
       num_envs: N.
       num_steps: steps of every environment.
 

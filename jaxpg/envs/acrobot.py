@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxpg import rng
 from jaxpg.cartpole import sincos
 from jaxpg.envs import common
 from jaxpg.types import ArrayLike, Observation, PRNGKey
@@ -194,8 +195,8 @@ def reset(key: PRNGKey, env_params: AcrobotParams) -> tuple[Observation, Acrobot
       (obs `[6]`, state with `[]` leaves), in the default float dtype.
     """
     check_params(env_params)
-    key_values, key_noise = jax.random.split(key)
-    values = jax.random.uniform(
+    key_values, key_noise = rng.split(key)
+    values = rng.uniform(
         key_values, (4,), minval=env_params.reset_low, maxval=env_params.reset_high
     )
     state = AcrobotState.from_array(common.float32_values(values), key=key_noise)

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxpg import rng
 from jaxpg.cartpole import sincos
 from jaxpg.envs import common
 from jaxpg.types import ArrayLike, Observation, PRNGKey
@@ -165,8 +166,7 @@ def reset(key: PRNGKey, env_params: MountainCarParams) -> tuple[Observation, Mou
 
 def initial_state(key: PRNGKey, env_params: Track) -> tuple[Observation, MountainCarState]:
     """`reset` without its check, for either mountain car."""
-    position = jax.random.uniform(key, (), minval=env_params.reset_low,
-                                  maxval=env_params.reset_high)
+    position = rng.uniform(key, (), env_params.reset_low, env_params.reset_high)
     state = MountainCarState.from_array(jnp.stack([position, jnp.zeros_like(position)]))
     return observe(state), state
 

@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxpg import rng
 from jaxpg.cartpole import sincos
 from jaxpg.envs import common
 from jaxpg.types import ArrayLike, Observation, PRNGKey
@@ -132,7 +133,7 @@ def reset(key: PRNGKey, env_params: PendulumParams) -> tuple[Observation, Pendul
     check_params(env_params)
     high = jnp.stack([jnp.asarray(env_params.reset_theta, float),
                       jnp.asarray(env_params.reset_theta_dot, float)])
-    state = PendulumState.from_array(jax.random.uniform(key, (2,), minval=-high, maxval=high))
+    state = PendulumState.from_array(rng.uniform(key, (2,), -high, high))
     return observe(state), state
 
 
