@@ -734,17 +734,17 @@ def cmd_render(args: argparse.Namespace) -> None:
 
 
 def cmd_conformance(args: argparse.Namespace) -> int:
-    """`jaxpg conformance`: plays CartPole in jaxpg and Gymnasium, compares every step, prints it.
+    """`jaxpg conformance`: steps one task in jaxpg and Gymnasium, compares every step, prints it.
 
     Args:
       args: the parsed arguments of `build_parser`.
 
     Returns:
-      0 where the comparison passes (`Report.ok`), 1 otherwise.
+      0 where the comparison passes (`ok` of `conformance.check`'s report), 1 otherwise.
     """
     from jaxpg import conformance
 
-    report = conformance.compare_with_gymnasium(episodes=args.episodes, seed=args.seed)
+    report = conformance.check(args.env, args.episodes, args.states, args.seed)
     print(report.format())
     return 0 if report.ok else 1
 
@@ -900,9 +900,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(handler=cmd_compare)
 
     p = commands.add_parser("conformance",
-                            help="compare jaxpg with Gymnasium's CartPole step by step")
-    p.add_argument("--episodes", type=int, default=100,
-                   help="episodes per variant (default %(default)s)")
+                            help="compare jaxpg with Gymnasium's environment step by step")
+    p.add_argument("--env", default="CartPole-v1",
+                   help="the environment's Gymnasium id (default %(default)s)")
+    p.add_argument("--episodes", type=int, default=None,
+                   help="CartPole: episodes per variant (default 100)")
+    p.add_argument("--states", type=int, default=None,
+                   help="the other environments: states drawn per variant (default 10000)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(handler=cmd_conformance)
 

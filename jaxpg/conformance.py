@@ -30,7 +30,7 @@ Besides the presets' variants, three physics settings change every physical fiel
 
 import dataclasses
 from collections.abc import Collection
-from typing import Any, NamedTuple, cast
+from typing import Any, cast
 
 import gymnasium
 import jax
@@ -40,7 +40,9 @@ import numpy.typing as npt
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from gymnasium.wrappers import TimeLimit
 
-from jaxpg import cartpole
+from jaxpg import cartpole, envs
+from jaxpg.envs import parity
+from jaxpg.envs.parity import Outcome
 from jaxpg.evaluation import (
     evaluate,
     gymnasium_reset_states,
@@ -90,15 +92,6 @@ def tolerance_for(dtype: FloatDType) -> float:
 def jaxpg_dtype() -> np.dtype[Any]:
     """The float dtype jaxpg computes in now: float32, or float64 under `jax_enable_x64`."""
     return np.dtype(jnp.result_type(float))
-
-
-class Outcome(NamedTuple):
-    """A batch of N steps' results, as numpy arrays."""
-
-    values: np.ndarray  # [N, 4] the new state (x, x_dot, theta, theta_dot)
-    reward: np.ndarray  # [N]
-    terminated: np.ndarray  # [N] bool
-    truncated: np.ndarray  # [N] bool
 
 
 @dataclasses.dataclass(frozen=True)
@@ -320,38 +313,29 @@ class Report:
         return all(v.ok for v in self.variants)
 
     def format(self) -> str:
-        """A text table, one row per variant, and a verdict."""
-        header = (f"{'variant':<20} {'episodes':>8} {'steps':>7} {'term':>5} {'trunc':>5}  "
-                  + " ".join(f"{c:>9}" for c in COMPONENTS)
-                  + f"  {'reward':>6} {'term':>4} {'trunc':>5} {'near':>4}  "
-                  f"{'diverged':>8} {'first':>5} {'median':>6}  {'returns':>7}  ok")
-        lines = [
-            f"jaxpg ({self.dtype}) vs Gymnasium CartPoleEnv (float64), re-synced every step:",
-            f"max per-step error (relative above 1) must be <= {self.tolerance:g}; mismatches of "
-            "reward / terminated / truncated must be 0",
-            "(near: reward or terminated differed where Gymnasium's state is within "
-            f"{THRESHOLD_SPACINGS} {self.dtype} spacings of a threshold; not a failure).",
-            f"Free-running, informational: episodes whose trajectory parted (error > "
-            f"{self.divergence_tolerance:g} or different termination), at which step.",
-            "Returns: the basic policy's episodes, each played in both, whose returns are "
-            "identical; all must be (under explicit Euler).",
-            "",
-            header,
-            "-" * len(header),
-        ]
-        for v in self.variants:
-            s = v.stats
-            lines.append(
-                f"{v.name:<20} {v.episodes:>8} {s.steps:>7} {s.terminated:>5} {s.truncated:>5}  "
-                + " ".join(f"{e:>9.2e}" for e in s.max_error)
-                + f"  {s.reward_mismatches:>6} {s.terminated_mismatches:>4} "
-                f"{s.truncated_mismatches:>5} {s.near_threshold:>4}  {v.diverged:>8} "
-                f"{_or_dash(v.first_divergence):>5} {_or_dash(v.median_divergence):>6}  "
-                f"{_fraction(v.equal_returns, v.episodes):>7}  " + ("yes" if v.ok else "NO")
-            )
-        lines.append("")
-        lines.append("conformance: " + ("OK" if self.ok else "FAILED"))
-        return "\n".join(lines)
+        """A text table, one row per variant, and a verdict (`parity.format_table`)."""
+        rows = [[v.name, v.episodes, v.stats.steps, v.stats.terminated, v.stats.truncated,
+                 *(f"{e:.2e}" for e in v.stats.max_error), v.stats.reward_mismatches,
+                 v.stats.terminated_mismatches, v.stats.truncated_mismatches,
+                 v.stats.near_threshold, v.diverged, _or_dash(v.first_divergence),
+                 _or_dash(v.median_divergence), _fraction(v.equal_returns, v.episodes),
+                 "yes" if v.ok else "NO"]
+                for v in self.variants]
+        return parity.format_table(
+            [f"jaxpg ({self.dtype}) vs Gymnasium CartPoleEnv (float64), re-synced every step:",
+             f"max per-step error (relative above 1) must be <= {self.tolerance:g}; mismatches "
+             "of reward / terminated / truncated must be 0",
+             "(near: reward or terminated differed where Gymnasium's state is within "
+             f"{THRESHOLD_SPACINGS} {self.dtype} spacings of a threshold; not a failure).",
+             f"Free-running, informational: episodes whose trajectory parted (error > "
+             f"{self.divergence_tolerance:g} or different termination), at which step.",
+             "Returns: the basic policy's episodes, each played in both, whose returns are "
+             "identical; all must be (under explicit Euler)."],
+            [("variant", -20), ("episodes", 8), ("steps", 7), ("term", 5), ("trunc", 5),
+             *((c, 9) for c in COMPONENTS), ("reward", 6), ("term", 4), ("trunc", 5),
+             ("near", 4), ("diverged", 8), ("first", 5), ("median", 6), ("returns", 7),
+             ("ok", 3)],
+            rows, self.ok)
 
 
 def _or_dash(value: float | None) -> str:
@@ -362,6 +346,40 @@ def _or_dash(value: float | None) -> str:
 def _fraction(count: int | None, total: int) -> str:
     """"count/total", or "-" for no count."""
     return "-" if count is None else f"{count}/{total}"
+
+
+def check(
+    env: str = "CartPole-v1", episodes: int | None = None, states: int | None = None,
+    seed: int = 0,
+) -> "Report | parity.Report":
+    """One task's conformance against Gymnasium: CartPole's episodes or another's drawn states.
+
+    Args:
+      env: a Gymnasium id of `jaxpg.envs.MODULES`.
+      episodes: CartPole's episodes per variant (`compare_with_gymnasium`, default 100); for
+        CartPole only.
+      states: another task's states drawn per variant (`parity.check`, default 10^4); not for
+        CartPole.
+      seed: a non-negative integer.
+
+    Returns:
+      `Report` (CartPole) or `parity.Report`; each has `ok` and `format()`.
+
+    Raises:
+      ValueError: one line naming the argument, for an unknown `env`, a count of the other kind
+        of task or out of range, or `seed` out of range.
+    """
+    if not isinstance(env, str) or env not in envs.MODULES:
+        raise ValueError(f"env: allowed {', '.join(envs.MODULES)}; got {env!r}")
+    if envs.MODULES[env] is cartpole:
+        if states is not None:
+            raise ValueError("states: CartPole's conformance plays whole episodes (episodes)")
+        return compare_with_gymnasium(100 if episodes is None else episodes, seed,
+                                      cartpole.PRESETS[env])
+    if episodes is not None:
+        raise ValueError(f"episodes: {env}'s conformance steps drawn states (states), "
+                         "not episodes")
+    return parity.check(env, 10_000 if states is None else states, seed)
 
 
 def compare_with_gymnasium(

@@ -1,11 +1,14 @@
 """The parity harness: passes on jaxpg as it is, fails on a wrong constant."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
 from flax import struct
 
-from jaxpg import cartpole, conformance
+from jaxpg import cartpole, cli, conformance
+from jaxpg.envs import mountain_car, parity
 from jaxpg.train_config import PHYSICS
 
 
@@ -80,3 +83,63 @@ def test_wrong_polemass_length_is_flagged():
 def test_bad_arguments_raise(kwargs, match):
     with pytest.raises(ValueError, match=f"^{match}:"):
         conformance.compare_with_gymnasium(**kwargs)
+
+
+# ---------------------------------------------------------------- the command, every task
+
+
+CLI_STATES = 200  # a few seconds per task; the tests of jaxpg.envs.parity step 10^4
+
+
+def run_cli(capsys, *argv):
+    """`jaxpg conformance ARGV` in this process: (status, stdout, stderr)."""
+    status = cli.run_command(["conformance", *argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+@pytest.mark.parametrize("env", list(parity.CASES))
+def test_command_reports_each_task(capsys, env):
+    status, out, err = run_cli(capsys, "--env", env, "--states", str(CLI_STATES))
+    assert status == 0 and not err, out + err
+    assert out.startswith(f"jaxpg {env} (float32) vs Gymnasium") and "constant values equal" in out
+    rows = {line.split()[0]: line.split() for line in out.splitlines()
+            if line.split() and line.split()[0] in parity.CASES[env].variants}
+    assert list(rows) == list(parity.CASES[env].variants)
+    for cells in rows.values():
+        # states, then mismatches of reward / terminated / truncated 0, ok "yes".
+        assert int(cells[1]) == CLI_STATES and cells[-5:-2] == ["0", "0", "0"], cells
+        assert cells[-1] == "yes" and float(cells[5]) <= 1.0, cells
+    assert out.rstrip().endswith("conformance: OK")
+
+
+def test_command_fails_on_a_wrong_constant(capsys, monkeypatch):
+    # Gymnasium keeps its force 0.001 (nothing configured) where jaxpg pushes with 0.0011.
+    name = mountain_car.NAME
+    wrong = dataclasses.replace(parity.CASES[name], configure=parity.set_attributes({}),
+                                variants={"wrong-force": mountain_car.V0.replace(force=0.0011)})
+    monkeypatch.setitem(parity.CASES, name, wrong)
+    status, out, _ = run_cli(capsys, "--env", name, "--states", str(CLI_STATES))
+    assert status == 1 and out.rstrip().endswith("conformance: FAILED"), out
+    (row,) = [line.split() for line in out.splitlines() if line.startswith("wrong-force ")]
+    assert float(row[5]) > 100 and row[-1] == "NO", row  # velocity 1.4e-3 of scale, tol 1e-5
+
+
+def test_command_runs_cartpole_by_default(capsys):
+    status, out, _ = run_cli(capsys, "--episodes", "2", "--seed", "1")
+    assert status == 0 and out.startswith("jaxpg (float32) vs Gymnasium CartPoleEnv"), out
+    assert [line.split()[0] for line in out.splitlines()[8:-2]] == list(conformance.VARIANTS)
+    assert out.rstrip().endswith("conformance: OK")
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--env", "CartPole-v2"], "env: allowed CartPole-v1, "),
+    (["--env", "Pendulum-v1", "--episodes", "5"], "episodes: "),
+    (["--states", "5"], "states: "),
+    (["--env", "Acrobot-v1", "--states", "0"], "states: "),
+    (["--env", "Acrobot-v1", "--seed", "-1"], "seed: "),
+])
+def test_command_refuses_bad_arguments_in_one_line(capsys, argv, match):
+    status, out, err = run_cli(capsys, *argv)
+    assert status == 2 and not out
+    assert err.startswith(f"jaxpg conformance: error: {match}") and err.count("\n") == 1, err

@@ -14,6 +14,7 @@ CartPole's harness, which also plays whole episodes, is `jaxpg.conformance`.
 """
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable, Sequence
 from types import ModuleType
@@ -252,7 +253,13 @@ def batched_step(module: ModuleType, env_params: Any) -> Callable[..., Any]:
     Returns:
       `(state [N], action [N], env_params) -> (obs, state, reward, terminated, truncated)`.
     """
-    params_axes = jax.tree.map(lambda leaf: 0 if np.ndim(leaf) else None, env_params)
+    return _jitted_step(module, jax.tree.map(lambda leaf: 0 if np.ndim(leaf) else None,
+                                             env_params))
+
+
+@functools.cache
+def _jitted_step(module: ModuleType, params_axes: Any) -> Callable[..., Any]:
+    """`batched_step`'s function, one per module and axes: compiled once per shape."""
     return jax.jit(jax.vmap(module.step, in_axes=(0, 0, params_axes)))
 
 
@@ -343,15 +350,22 @@ def float32_tolerances(case: Case, env_params: Any, values: np.ndarray, times: n
     Returns:
       `[N, K]` relative tolerances.
     """
-    def new(value: jax.Array, time: jax.Array, action: jax.Array) -> jax.Array:
-        return case.module.step(case.state.from_array(value, time), action, env_params)[
-            1].to_array()
-
     with jax.enable_x64(True):
-        jacobians = np.asarray(jax.jit(jax.vmap(jax.jacfwd(new)))(values, times, actions))
+        jacobians = np.asarray(_jacobians(case.module, case.state)(values, times, actions,
+                                                                   env_params))
     change = (np.abs(jacobians) @ np.abs(values)[..., None])[..., 0] * 2.0**-24
     return np.maximum(FLOAT32_TOLERANCE,
                       10 * change / np.maximum(np.abs(new_values), case.scale))
+
+
+@functools.cache
+def _jacobians(module: ModuleType, state: Any) -> Callable[..., jax.Array]:
+    """`(values [N, K], times [N], actions [N], env_params) -> [N, K, K]`: each step's Jacobian
+    of the new state by the old, compiled once per module and static fields."""
+    def new(value: jax.Array, time: jax.Array, action: jax.Array, env_params: Any) -> jax.Array:
+        return module.step(state.from_array(value, time), action, env_params)[1].to_array()
+
+    return jax.jit(jax.vmap(jax.jacfwd(new), in_axes=(0, 0, 0, None)))
 
 
 # ---------------------------------------------------------------- comparing them
