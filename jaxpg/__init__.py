@@ -18,8 +18,9 @@ __version__ = "0.1.0"
 if TYPE_CHECKING:
     from importlib.machinery import ModuleSpec
 
-    from jaxpg import cartpole, losses
     from jaxpg import gym as gym  # (an attribute, left out of `__all__`)
+    from jaxpg import losses
+    from jaxpg.envs import cartpole
     from jaxpg.evaluation import EvalResult, evaluate, robustness
     from jaxpg.executables import keep_programs
     from jaxpg.iteration import Metrics, TrainResult
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
     from jaxpg.sweeps import SweepResult, sweep, train
     from jaxpg.train_config import Hyperparams, TrainConfig
 
-_MODULES = ("cartpole", "gym", "losses")
+_MODULES = {"cartpole": "envs.cartpole", "gym": "gym", "losses": "losses"}  # name: module
 _DEFINED_IN = {  # public name: the module of jaxpg's that defines it
     "EvalResult": "evaluation",
     "evaluate": "evaluation",
@@ -52,7 +53,7 @@ _DEFINED_IN = {  # public name: the module of jaxpg's that defines it
 def __getattr__(name: str) -> object:
     """A public name of jaxpg's or one of its modules, imported on first use."""
     if name in _MODULES:
-        return importlib.import_module(f"{__name__}.{name}")
+        return importlib.import_module(f"{__name__}.{_MODULES[name]}")
     if name not in _DEFINED_IN:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     value = getattr(importlib.import_module(f"{__name__}.{_DEFINED_IN[name]}"), name)

@@ -40,8 +40,8 @@ import numpy.typing as npt
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from gymnasium.wrappers import TimeLimit
 
-from jaxpg import cartpole, envs
-from jaxpg.envs import parity
+from jaxpg import envs
+from jaxpg.envs import cartpole, parity
 from jaxpg.envs.parity import Outcome
 from jaxpg.evaluation import (
     evaluate,

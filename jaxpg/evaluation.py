@@ -20,7 +20,8 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
-from jaxpg import budget, cartpole, envs, rng, rollout, sweeps, train_config
+from jaxpg import budget, envs, rng, rollout, sweeps, train_config
+from jaxpg.envs import cartpole
 from jaxpg.policies import init_network, network_policy
 from jaxpg.types import Action, Observation, Params, Policy, PRNGKey
 from jaxpg.validation import check_choice, check_finite, check_int, check_representable

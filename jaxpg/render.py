@@ -22,10 +22,10 @@ import jax
 import numpy as np
 import numpy.typing as npt
 
-from jaxpg import atomic_files, budget, cartpole, envs, rollout
+from jaxpg import atomic_files, budget, envs, rollout
 from jaxpg.atomic_files import StrPath
-from jaxpg.cartpole import CartPoleParams
-from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
+from jaxpg.envs import acrobot, cartpole, continuous_mountain_car, mountain_car, pendulum
+from jaxpg.envs.cartpole import CartPoleParams
 from jaxpg.types import HostArray, Policy
 from jaxpg.validation import check_finite, check_int
 

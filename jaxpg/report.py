@@ -20,7 +20,8 @@ from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 
-from jaxpg import atomic_files, cartpole, checkpoint, plots, safe_read, stats
+from jaxpg import atomic_files, checkpoint, plots, safe_read, stats
+from jaxpg.envs import cartpole
 from jaxpg.sweeps import SOLVED_WINDOW, SweepResult
 from jaxpg.validation import check_finite, check_int
 

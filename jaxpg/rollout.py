@@ -21,7 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import cartpole, envs, rng, sums
+from jaxpg import envs, rng, sums
+from jaxpg.envs import cartpole
 from jaxpg.types import Action, ArrayLike, Observation, Policy, PRNGKey
 
 # The policy of a stream, which draws its own random numbers: (obs `[N, K]`, key) -> action `[N]`.

@@ -12,7 +12,8 @@ import jax
 import numpy as np
 import optax
 
-from jaxpg import cartpole, envs, losses, policies
+from jaxpg import envs, losses, policies
+from jaxpg.envs import cartpole
 from jaxpg.types import ArrayLike
 from jaxpg.validation import check_finite, check_int, check_number, check_representable, in_float64
 

@@ -34,8 +34,8 @@ def test_each_public_name_imports_as_before(name):
     exec(f"from jaxpg import {name}", namespace)
     value = namespace[name]
     assert name in dir(jaxpg) and getattr(jaxpg, name) is value
-    if name in ("cartpole", "gym", "losses"):
-        assert value is importlib.import_module(f"jaxpg.{name}")
+    if name in ("cartpole", "gym", "losses"):  # CartPole's module is one of `jaxpg.envs`
+        assert value is importlib.import_module(f"jaxpg.{'envs.' * (name == 'cartpole')}{name}")
     else:  # a function or class of one of jaxpg's modules
         assert getattr(importlib.import_module(value.__module__), name) is value
         assert value.__module__.startswith("jaxpg.")

@@ -20,8 +20,14 @@ import dataclasses
 from types import ModuleType
 from typing import Any
 
-from jaxpg import cartpole
-from jaxpg.envs import acrobot, continuous_mountain_car, gymnax_style, mountain_car, pendulum
+from jaxpg.envs import (
+    acrobot,
+    cartpole,
+    continuous_mountain_car,
+    gymnax_style,
+    mountain_car,
+    pendulum,
+)
 from jaxpg.envs.gymnax_style import from_gymnax
 
 MODULES: dict[str, ModuleType] = {

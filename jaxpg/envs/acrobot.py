@@ -28,8 +28,8 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxpg import rng
-from jaxpg.cartpole import sincos
 from jaxpg.envs import common
+from jaxpg.envs.cartpole import sincos
 from jaxpg.types import ArrayLike, Observation, PRNGKey
 from jaxpg.validation import check_choice
 
