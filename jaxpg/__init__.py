@@ -3,7 +3,7 @@
 `import jaxpg` imports neither JAX nor Gymnasium: each public name is imported on first use
 (`jaxpg.train`, `from jaxpg import cartpole`), so the `jaxpg` command handles Ctrl-C from its
 first moment. `jaxpg/CartPole-v1` and `jaxpg/CartPole-v0` are registered with Gymnasium as it is
-imported (at once where it already is); `gymnasium.make` imports their adapters (`jaxpg.gym`).
+imported (at once where it already is); `gymnasium.make` imports their adapters (`jaxpg.envs.gym`).
 """
 
 import importlib
@@ -18,9 +18,11 @@ __version__ = "0.1.0"
 if TYPE_CHECKING:
     from importlib.machinery import ModuleSpec
 
-    from jaxpg import gym as gym  # (an attribute, left out of `__all__`)
     from jaxpg import losses
     from jaxpg.envs import cartpole
+    from jaxpg.envs import conformance as conformance  # (attributes, left out of `__all__`)
+    from jaxpg.envs import gym as gym
+    from jaxpg.envs import render as render
     from jaxpg.evaluation import EvalResult, evaluate, robustness
     from jaxpg.executables import keep_programs
     from jaxpg.iteration import Metrics, TrainResult
@@ -30,7 +32,9 @@ if TYPE_CHECKING:
     from jaxpg.sweeps import SweepResult, sweep, train
     from jaxpg.train_config import Hyperparams, TrainConfig
 
-_MODULES = {"cartpole": "envs.cartpole", "gym": "gym", "losses": "losses"}  # name: module
+# name: module; `render` and `conformance` too, as before they moved into `jaxpg.envs`
+_MODULES = {"cartpole": "envs.cartpole", "conformance": "envs.conformance", "gym": "envs.gym",
+            "losses": "losses", "render": "envs.render"}
 _DEFINED_IN = {  # public name: the module of jaxpg's that defines it
     "EvalResult": "evaluation",
     "evaluate": "evaluation",
@@ -93,9 +97,9 @@ def _register_ids(gymnasium: ModuleType) -> None:
         cartpole = name.startswith("CartPole")
         gymnasium.register(
             id=env_id,
-            entry_point="jaxpg.gym:CartPoleEnv" if cartpole else
+            entry_point="jaxpg.envs.gym:CartPoleEnv" if cartpole else
             "jaxpg.envs.adapters:ClassicControlEnv",
-            vector_entry_point="jaxpg.gym:CartPoleVectorEnv" if cartpole else None,
+            vector_entry_point="jaxpg.envs.gym:CartPoleVectorEnv" if cartpole else None,
             max_episode_steps=theirs.max_episode_steps,
             reward_threshold=theirs.reward_threshold,
             kwargs={} if cartpole else {"env_params": name},

@@ -719,7 +719,8 @@ def cmd_render(args: argparse.Namespace) -> None:
     Raises:
       ValueError: a bad argument, before anything is drawn.
     """
-    from jaxpg import envs, render
+    from jaxpg import envs
+    from jaxpg.envs import render
     from jaxpg.validation import check_int
 
     render.check_animation_path(args.out, "out")
@@ -742,7 +743,7 @@ def cmd_conformance(args: argparse.Namespace) -> int:
     Returns:
       0 where the comparison passes (`ok` of `conformance.check`'s report), 1 otherwise.
     """
-    from jaxpg import conformance
+    from jaxpg.envs import conformance
 
     report = conformance.check(args.env, args.episodes, args.states, args.seed)
     print(report.format())

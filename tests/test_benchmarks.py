@@ -119,7 +119,7 @@ def test_runs_on_another_env_id():
 
 
 def test_runs_on_jaxpgs_registered_env():
-    pytest.importorskip("jaxpg.gym")
+    pytest.importorskip("jaxpg.envs.gym")
     assert len(book_numpy.train(seed=0, iterations=1, env_id="jaxpg/CartPole-v1")) == 1
 
 

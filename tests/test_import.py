@@ -28,14 +28,14 @@ def test_importing_the_package_or_the_command_imports_nothing_heavy(module):
     assert loaded == []
 
 
-@pytest.mark.parametrize("name", sorted({*jaxpg.__all__, "gym"}))
+@pytest.mark.parametrize("name", sorted({*jaxpg.__all__, *jaxpg._MODULES}))
 def test_each_public_name_imports_as_before(name):
     namespace = {}
     exec(f"from jaxpg import {name}", namespace)
     value = namespace[name]
     assert name in dir(jaxpg) and getattr(jaxpg, name) is value
-    if name in ("cartpole", "gym", "losses"):  # CartPole's module is one of `jaxpg.envs`
-        assert value is importlib.import_module(f"jaxpg.{'envs.' * (name == 'cartpole')}{name}")
+    if name in jaxpg._MODULES:  # a module: CartPole's and its adapters' are in `jaxpg.envs`
+        assert value is importlib.import_module(f"jaxpg.{jaxpg._MODULES[name]}")
     else:  # a function or class of one of jaxpg's modules
         assert getattr(importlib.import_module(value.__module__), name) is value
         assert value.__module__.startswith("jaxpg.")
@@ -62,8 +62,8 @@ print(json.dumps({"jax_on_import": jax_on_import, "env": type(env.unwrapped).__m
                   "vector": type(envs).__module__}))
 """)
     # JAX on registration only where the lines above imported it (`train`).
-    assert found == {"jax_on_import": "train" in imports, "env": "jaxpg.gym", "limit": 200,
-                     "vector_limit": 200, "vector": "jaxpg.gym"}
+    assert found == {"jax_on_import": "train" in imports, "env": "jaxpg.envs.gym", "limit": 200,
+                     "vector_limit": 200, "vector": "jaxpg.envs.gym"}
 
 
 def test_the_ids_have_jaxpgs_time_limits_and_thresholds():

@@ -42,7 +42,7 @@ from gymnasium.envs.classic_control import utils
 
 from jaxpg import _register_ids, envs
 from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
-from jaxpg.gym import _host_params
+from jaxpg.envs.gym import _host_params
 from jaxpg.types import HostArray
 
 State = Any  # as Gymnasium's env holds it: a numpy array, or MountainCar's (position, velocity)
@@ -286,7 +286,7 @@ class ClassicControlEnv(gymnasium.Env):
 
         Raises:
           ValueError: for a render mode, an unknown name, or `env_params` that are invalid or
-            another environment's (CartPole's: `jaxpg.gym.CartPoleEnv`).
+            another environment's (CartPole's: `jaxpg.envs.gym.CartPoleEnv`).
         """
         if render_mode is not None:
             raise ValueError(f"render_mode: must be None (no rendering), got {render_mode!r}")

@@ -21,7 +21,7 @@ NUM_ACTIONS = 2  # push left, push right
 INTEGRATORS = ("euler", "semi-implicit")
 
 # The values that the pieces of `step` compute with, all of one kind: JAX arrays inside `step`,
-# numpy arrays or scalars in the Gymnasium adapters (`jaxpg.gym`).
+# numpy arrays or scalars in the Gymnasium adapters (`jaxpg.envs.gym`).
 Value = TypeVar("Value", jax.Array, np.ndarray, np.floating)
 
 
@@ -312,8 +312,8 @@ def step(state: CartPoleState, action: ArrayLike, env_params: CartPoleParams
 
 
 # The pieces of `step` below use arithmetic operators only, so that numpy values (arrays or
-# scalars) go through the same operations in the same order: the Gymnasium adapters (`jaxpg.gym`)
-# step in numpy with them.
+# scalars) go through the same operations in the same order: the Gymnasium adapters
+# (`jaxpg.envs.gym`) step in numpy with them.
 
 
 def accelerations(theta_dot: Value, force: Value | float, sintheta: Value, costheta: Value,

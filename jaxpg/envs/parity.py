@@ -10,7 +10,7 @@ within the same; truncations equal; terminations equal except where Gymnasium's 
 within the float32 step's own error of a threshold ("near threshold", not a failure). Resets are
 compared as distributions: the same ranges, means and shapes.
 
-CartPole's harness, which also plays whole episodes, is `jaxpg.conformance`.
+CartPole's harness, which also plays whole episodes, is `jaxpg.envs.conformance`.
 """
 
 import dataclasses

@@ -27,8 +27,8 @@ from gymnasium.envs.classic_control import utils
 from gymnasium.vector import AutoresetMode
 from gymnasium.vector.utils import batch_space
 
-from jaxpg import _register_ids, render
-from jaxpg.envs import cartpole
+from jaxpg import _register_ids
+from jaxpg.envs import cartpole, render
 from jaxpg.envs.cartpole import CartPoleParams
 from jaxpg.types import HostArray
 from jaxpg.validation import check_int
