@@ -344,7 +344,7 @@ def random_policy(obs: Observation, key: PRNGKey, env_params: Any = cartpole.V1)
     2**k discrete actions come from k-bit fields of random 32-bit words, 32 // k from each word
     (CartPole's 32 actions from each word, one bit each); n others from one word each, its low
     16 bits f giving `(f * n) >> 16`, each action's probability within 2**-16 of 1/n. Continuous
-    actions are uniform in the module's [ACTION_LOW, ACTION_HIGH), one word each.
+    actions are uniform in the params' `action_bounds`, [low, high), one word each.
 
     Args:
       obs: `[..., K]` observations, of which only the shape and dtype are read.
@@ -362,7 +362,8 @@ def random_policy(obs: Observation, key: PRNGKey, env_params: Any = cartpole.V1)
     module = envs.module_of(env_params)
     shape = obs.shape[:-1]
     if not envs.is_discrete(module):
-        return rng.uniform(key, shape, module.ACTION_LOW, module.ACTION_HIGH, obs.dtype)
+        low, high = module.action_bounds(env_params)
+        return rng.uniform(key, shape, low, high, obs.dtype)
     n = module.NUM_ACTIONS
     if n & (n - 1) == 0:
         width = max(1, n.bit_length() - 1)

@@ -102,11 +102,16 @@ def test_random_policy_draws_three_actions_from_sixteen_bits_of_a_word_each(name
     assert scipy.stats.chisquare(np.bincount(actions, minlength=3)).pvalue > 1e-3
 
 
-@pytest.mark.parametrize("name", ["MountainCarContinuous-v0", "Pendulum-v1"])
-def test_random_policy_draws_continuous_actions_uniform_in_the_action_range(name):
+@pytest.mark.parametrize("name, overrides, low, high", [
+    ("MountainCarContinuous-v0", {}, -1.0, 1.0),
+    ("MountainCarContinuous-v0", {"min_action": -0.25, "max_action": 0.5}, -0.25, 0.5),
+    ("Pendulum-v1", {}, -2.0, 2.0),
+    ("Pendulum-v1", {"max_torque": 5.0}, -5.0, 5.0),  # the params' range, not the preset's
+])
+def test_random_policy_draws_continuous_actions_uniform_in_the_action_range(name, overrides,
+                                                                            low, high):
     module, key = envs.MODULES[name], jax.random.PRNGKey(7)
     actions = rollout.random_policy(np.zeros((1000, module.OBS_SIZE), np.float32), key,
-                                    task_params(name))
-    expected = jax.random.uniform(key, (1000,), minval=module.ACTION_LOW,
-                                  maxval=module.ACTION_HIGH)
+                                    module.make_params(name, **overrides))
+    expected = jax.random.uniform(key, (1000,), minval=low, maxval=high)
     np.testing.assert_array_equal(actions, expected)

@@ -1,9 +1,10 @@
 """Gymnasium's classic-control tasks as pure, jittable JAX modules, each equal to Gymnasium's.
 
-Every module has the same interface, as `jaxpg.cartpole`:
+Every module has the same interface, as `jaxpg.envs.cartpole` (CartPole's):
 
 - `NAME` (the Gymnasium id), `OBS_SIZE`, and `NUM_ACTIONS` (discrete actions, int `[...]`) or
-  `ACTION_LOW` and `ACTION_HIGH` (one continuous action, float `[...]`);
+  `ACTION_LOW` and `ACTION_HIGH` (one continuous action, float `[...]`, in the presets' range;
+  `action_bounds(env_params)` gives a params' own);
 - a `flax.struct` params dataclass whose numbers are pytree leaves (a sweep can vmap over them)
   and whose program-changing options are static fields; its presets (`PRESETS` by id, and `V0`
   or `V1`), `make_params(env, **overrides)` and `check_params(env_params)`;

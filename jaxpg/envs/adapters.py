@@ -210,7 +210,7 @@ def _car_observe(state: Any) -> HostArray:
 
 def _pendulum_spaces(p: Any) -> tuple[spaces.Space, spaces.Box]:
     """Gymnasium's Pendulum spaces: one torque; cosine, sine and bounded velocity `[3]`."""
-    return _action_box(-p.max_torque, p.max_torque), _box([1.0, 1.0, p.max_speed])
+    return _action_box(*pendulum.action_bounds(p)), _box([1.0, 1.0, p.max_speed])
 
 
 def _pendulum_initial(np_random: np.random.Generator, p: Any, options: dict[str, Any] | None
@@ -245,7 +245,7 @@ _DYNAMICS = {
     mountain_car: _Dynamics(lambda p: _car_spaces(p, spaces.Discrete(mountain_car.NUM_ACTIONS)),
                             _car_initial, _mountain_car_step, _car_observe, 30),
     continuous_mountain_car: _Dynamics(
-        lambda p: _car_spaces(p, _action_box(p.min_action, p.max_action)),
+        lambda p: _car_spaces(p, _action_box(*continuous_mountain_car.action_bounds(p))),
         _car_initial, _continuous_car_step, _car_observe, 30),
     pendulum: _Dynamics(_pendulum_spaces, _pendulum_initial, _pendulum_step, _pendulum_observe,
                         30),

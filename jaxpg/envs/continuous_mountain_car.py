@@ -117,6 +117,11 @@ def reset(key: PRNGKey, env_params: ContinuousMountainCarParams
     return initial_state(key, env_params)
 
 
+def action_bounds(env_params: ContinuousMountainCarParams) -> tuple[Any, Any]:
+    """The pushes `step` takes unclipped: (min_action, max_action) of `env_params`."""
+    return env_params.min_action, env_params.max_action
+
+
 def step(state: MountainCarState, action: ArrayLike, env_params: ContinuousMountainCarParams
          ) -> tuple[Observation, MountainCarState, jax.Array, jax.Array, jax.Array]:
     """Advances one step with the push `action`, clipped to [min_action, max_action].
@@ -141,7 +146,8 @@ def step(state: MountainCarState, action: ArrayLike, env_params: ContinuousMount
     p = env_params
     dtype = state.position.dtype
     action = jnp.asarray(action, dtype)
-    force = jnp.minimum(jnp.maximum(action, p.min_action), p.max_action)
+    low, high = action_bounds(p)
+    force = jnp.minimum(jnp.maximum(action, low), high)
     position, velocity, terminated = move(
         state.position, state.velocity, force * p.power - p.gravity * hill_cos(state.position), p)
     state = MountainCarState(common.float32_values(position.astype(dtype)),

@@ -137,6 +137,11 @@ def reset(key: PRNGKey, env_params: PendulumParams) -> tuple[Observation, Pendul
     return observe(state), state
 
 
+def action_bounds(env_params: PendulumParams) -> tuple[Any, Any]:
+    """The torques `step` takes unclipped: (-max_torque, max_torque) of `env_params`."""
+    return -env_params.max_torque, env_params.max_torque
+
+
 def step(state: PendulumState, action: ArrayLike, env_params: PendulumParams
          ) -> tuple[Observation, PendulumState, jax.Array, jax.Array, jax.Array]:
     """Advances one step of `dt` seconds with the torque `action`, clipped to the torque limit.
@@ -160,7 +165,8 @@ def step(state: PendulumState, action: ArrayLike, env_params: PendulumParams
     p = env_params
     th, thdot = state.theta, state.theta_dot
     dtype = th.dtype
-    u = jnp.minimum(jnp.maximum(jnp.asarray(action, dtype), -p.max_torque), p.max_torque)
+    low, high = action_bounds(p)
+    u = jnp.minimum(jnp.maximum(jnp.asarray(action, dtype), low), high)
     costs = angle_normalize(th) ** 2 + 0.1 * thdot**2 + 0.001 * (u**2)
     newthdot = thdot + (3 * p.gravity / (2 * p.length) * sincos(th)[0]
                         + 3.0 / (p.mass * p.length**2) * u) * p.dt
