@@ -82,9 +82,9 @@ def _register_ids(gymnasium: ModuleType) -> None:
     (`jaxpg/Acrobot-v1`, ...) with `gymnasium` (idempotent).
 
     Each has the time limit and reward threshold of Gymnasium's id of the same name, and jaxpg's
-    adapters as entry points (`jaxpg.gym`'s for CartPole, `jaxpg.envs.adapters.ClassicControlEnv`
-    for the others, with the task's name as `env_params`), which `gymnasium.make` and `make_vec`
-    import (JAX with them) when first called.
+    adapters as entry points (`jaxpg.envs.gym`'s for CartPole,
+    `jaxpg.envs.adapters.ClassicControlEnv` for the others, with the task's name as `env_params`),
+    which `gymnasium.make` and `make_vec` import (JAX with them) when first called.
 
     Args:
       gymnasium: the module `gymnasium`, imported.

@@ -85,6 +85,24 @@ def _unique() -> str:
 # --- Output folders ------------------------------------------------------------------------------
 
 
+def check_not_replacing(out: StrPath, source: StrPath, what: str, written: str) -> None:
+    """Checks that writing the folder `out` (which replaces it whole) keeps `source`.
+
+    Args:
+      out: the output folder.
+      source: a file or folder the command reads.
+      what: `source` in words, for the message ("a folder compared").
+      written: what the command writes, for the message ("the report").
+
+    Raises:
+      ValueError: naming `out`, where it is `source` or holds it.
+    """
+    target, read = pathlib.Path(out).resolve(), pathlib.Path(source).resolve()
+    if read == target or target in read.parents:
+        raise ValueError(f"out: {os.fspath(out)} holds {os.fspath(source)}, {what}, which "
+                         f"writing {written} would replace; choose another folder")
+
+
 def check_out_dir(out: StrPath) -> pathlib.Path:
     """Checks that the output directory `out` can hold jaxpg's results; creates nothing.
 

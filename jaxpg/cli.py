@@ -622,11 +622,10 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
 def _check_not_replaced(out: str, policy: str) -> None:
     """A ValueError naming `out` where it holds the checkpoint `policy`, which writing `out` would
     replace (nothing for the basic policy)."""
-    target = pathlib.Path(out).resolve()
-    source = pathlib.Path(policy).resolve()
-    if policy != "basic" and (source == target or target in source.parents):
-        raise ValueError(f"out: {out} holds {policy}, the policies evaluated, which writing the "
-                         f"results would replace; choose another folder")
+    from jaxpg import atomic_files
+
+    if policy != "basic":
+        atomic_files.check_not_replacing(out, policy, "the policies evaluated", "the results")
 
 
 def _chunk_progress(args: argparse.Namespace
@@ -1075,8 +1074,9 @@ def _watch_ctrl_c() -> None:
 
         atomic_files.cancel()
         time.sleep(_GRACE)
-        with _saying:
-            _end(130, None if _said.is_set() else f"{' '.join(_command)}: interrupted")
+        # Bounded: a main thread stuck mid-line (a full stderr pipe) must not keep the end away.
+        _saying.acquire(timeout=_GRACE)
+        _end(130, None if _said.is_set() else f"{' '.join(_command)}: interrupted")
 
     threading.Thread(target=watch, daemon=True, name="jaxpg-ctrl-c").start()
 

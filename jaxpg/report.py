@@ -493,14 +493,9 @@ def write(sweeps: Sequence[Source], out: str | os.PathLike[str], confidence: flo
 def _check_not_compared(out: str | os.PathLike[str], sweeps: Sequence[Source]) -> None:
     """Raises a ValueError naming `out` where it is, or holds, a folder being compared: writing
     `out` replaces it whole."""
-    target = pathlib.Path(out).resolve()
     for source in sweeps:
         if isinstance(source, str | os.PathLike):
-            folder = pathlib.Path(source).resolve()
-            if folder == target or target in folder.parents:
-                raise ValueError(f"out: {os.fspath(out)} holds {os.fspath(source)}, a folder "
-                                 f"compared, which writing the report would replace; choose "
-                                 f"another folder")
+            atomic_files.check_not_replacing(out, source, "a folder compared", "the report")
 
 
 def _renamed(comparison: dict[str, Any], folder: str, name: str) -> dict[str, Any]:

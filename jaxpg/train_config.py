@@ -129,7 +129,7 @@ class TrainConfig:
 
     @property
     def env_module(self) -> Any:
-        """The environment's module: `jaxpg.cartpole` or one of `jaxpg.envs`."""
+        """The environment's module: one of `jaxpg.envs` (CartPole's: `jaxpg.envs.cartpole`)."""
         return envs.module_of(self.env_params)
 
     @property

@@ -28,14 +28,18 @@ def test_importing_the_package_or_the_command_imports_nothing_heavy(module):
     assert loaded == []
 
 
-@pytest.mark.parametrize("name", sorted({*jaxpg.__all__, *jaxpg._MODULES}))
+MODULES = {"cartpole": "jaxpg.envs.cartpole", "conformance": "jaxpg.envs.conformance",
+           "gym": "jaxpg.envs.gym", "losses": "jaxpg.losses", "render": "jaxpg.envs.render"}
+
+
+@pytest.mark.parametrize("name", sorted({*jaxpg.__all__, *MODULES}))
 def test_each_public_name_imports_as_before(name):
     namespace = {}
     exec(f"from jaxpg import {name}", namespace)
     value = namespace[name]
     assert name in dir(jaxpg) and getattr(jaxpg, name) is value
-    if name in jaxpg._MODULES:  # a module: CartPole's and its adapters' are in `jaxpg.envs`
-        assert value is importlib.import_module(f"jaxpg.{jaxpg._MODULES[name]}")
+    if name in MODULES:  # a module: CartPole's, its adapters' and their harness are in envs
+        assert value is importlib.import_module(MODULES[name])
     else:  # a function or class of one of jaxpg's modules
         assert getattr(importlib.import_module(value.__module__), name) is value
         assert value.__module__.startswith("jaxpg.")
