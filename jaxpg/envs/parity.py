@@ -511,8 +511,9 @@ class ResetComparison(NamedTuple):
 def compare_resets(ours: np.ndarray, theirs: np.ndarray) -> ResetComparison:
     """Whether jaxpg's resets are distributed as Gymnasium's.
 
-    A uniform's mean has standard deviation ptp / sqrt(12 n); the KS p-value of the same
-    distribution is uniform, of another range or a skew ~0.
+    The mean of n uniforms has standard deviation ptp / sqrt(12 n), so the difference of the two
+    means ptp / sqrt(12) * sqrt(1/n + 1/m); the KS p-value of the same distribution is uniform, of
+    another range or a skew ~0.
 
     Args:
       ours: `[n, K]` jaxpg's reset states.
@@ -523,7 +524,8 @@ def compare_resets(ours: np.ndarray, theirs: np.ndarray) -> ResetComparison:
     """
     spread = np.ptp(theirs, axis=0)
     constant = spread == 0
-    standard_error = np.where(constant, 1.0, spread) / math.sqrt(12 * len(ours))
+    standard_error = (np.where(constant, 1.0, spread)
+                      * math.sqrt((1 / len(ours) + 1 / len(theirs)) / 12))
     mean_sigmas = np.where(constant, 0.0,
                            np.abs(ours.mean(axis=0) - theirs.mean(axis=0)) / standard_error)
     p_value = np.array([1.0 if fixed else scipy.stats.ks_2samp(mine, gyms).pvalue
