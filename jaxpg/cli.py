@@ -1074,9 +1074,8 @@ def _watch_ctrl_c() -> None:
 
         atomic_files.cancel()
         time.sleep(_GRACE)
-        # Bounded: a main thread stuck mid-line (a full stderr pipe) must not keep the end away.
-        _saying.acquire(timeout=_GRACE)
-        _end(130, None if _said.is_set() else f"{' '.join(_command)}: interrupted")
+        with _saying:
+            _end(130, None if _said.is_set() else f"{' '.join(_command)}: interrupted")
 
     threading.Thread(target=watch, daemon=True, name="jaxpg-ctrl-c").start()
 
