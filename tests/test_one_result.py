@@ -114,10 +114,25 @@ def test_ctrl_c_in_the_first_seconds_of_jaxpg_train_leaves_out_untouched(tmp_pat
     assert _snapshot(out) == before and out.stat().st_ino == inode  # (not replaced by a copy)
 
 
+# A render whose episode is one compiled loop of 2**31 - 1 steps: it runs until the signal ends it.
+# (The basic policy's own episodes end within a hundred steps, too soon to be interrupted.)
+_LONG_RENDER = """
+import jax
+from jaxpg import cli
+from jaxpg.envs import render
+
+def episode(*args, **kwargs):
+    long = jax.jit(lambda x: jax.lax.fori_loop(0, 2**31 - 1, lambda i, v: v * 0.5 + 1.0, x))
+    return long(jax.numpy.ones(4096)).block_until_ready()  # minutes: 2**31 steps of 4096
+
+render.render_episode = episode
+cli.main(["render", "--max-steps", "10000000", "--out", "long.gif"])
+"""
+
+
 def test_ctrl_c_ends_a_render_of_a_long_episode(tmp_path):
-    """The basic policy balances for long: the compiled episode runs until the signal ends it."""
-    status, seconds, stderr = _interrupted(
-        ["render", "--max-steps", "10000000", "--out", str(tmp_path / "long.gif")], 4.0, tmp_path)
+    status, seconds, stderr = _interrupted([], 4.0, tmp_path,
+                                           command=(sys.executable, "-c", _LONG_RENDER))
     assert status == 130 and seconds < 3 and "Traceback" not in stderr, stderr
     assert not (tmp_path / "long.gif").exists()
 
