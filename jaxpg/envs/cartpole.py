@@ -3,7 +3,6 @@
 Operation order follows Gymnasium's `step` exactly, so that in float64 the two agree to rounding.
 """
 
-import dataclasses
 import math
 from typing import TYPE_CHECKING, Any, Protocol, Self, TypeVar, overload
 
@@ -12,8 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxpg.envs import common
 from jaxpg.types import ArrayLike, Observation, PRNGKey
-from jaxpg.validation import check_choice, check_finite, check_representable, in_float64
+from jaxpg.validation import check_choice, check_representable, in_float64
 
 NAME = "CartPole-v1"
 OBS_SIZE = 4  # x, x_dot, theta, theta_dot
@@ -187,17 +187,13 @@ def make_params(env: str = "CartPole-v1", **overrides: Any) -> CartPoleParams:
 
 
 _POSITIVE = ("masscart", "masspole", "length", "force_mag", "tau", "x_threshold",
-             "theta_threshold_radians", "max_steps")
+             "theta_threshold_radians")
 
 # The quantities that `step` and `reset` derive from the fields, as `check_params` names them.
 _DERIVED = {"masspole + masscart": (np.add, "masspole", "masscart"),
             "masspole * length": (np.multiply, "masspole", "length"),
             "reset_high - reset_low": (np.subtract, "reset_high", "reset_low")}
-_POSITIVE_IN_FLOATS = (*_POSITIVE, "masspole + masscart", "masspole * length")
-
-_NUMBERS = tuple(field.name for field in dataclasses.fields(CartPoleParams)
-                 if field.metadata.get("pytree_node", True))
-MAX_STEPS_LIMIT = 2**31  # episodes count their steps in int32
+_POSITIVE_DERIVED = ("masspole + masscart", "masspole * length")
 
 
 def check_params(env_params: CartPoleParams) -> None:
@@ -214,41 +210,22 @@ def check_params(env_params: CartPoleParams) -> None:
     Raises:
       ValueError: naming the first invalid field: a value that is not finite, a mass, length,
         force, time step or threshold at or below 0, a value or derived quantity that overflows
-        or underflows as above, a `max_steps` that is not an integer in [1, MAX_STEPS_LIMIT),
+        or underflows as above, a `max_steps` that is not an integer in [1, 2**31),
         reset bounds out of order, an unknown integrator, or `env_params` not a
         `CartPoleParams`.
     """
-    if not isinstance(env_params, CartPoleParams):
-        raise ValueError(f"env_params: expected a CartPoleParams, got {type(env_params).__name__}")
+    common.check_numbers(env_params, CartPoleParams, _POSITIVE)  # each field on its own
     check_choice("integrator", env_params.integrator, INTEGRATORS)
-    values = {name: _concrete(getattr(env_params, name)) for name in _NUMBERS}
-    for name, value in values.items():
-        if value is not None:
-            check_finite(name, value)
-    steps = values.pop("max_steps")
-    if steps is not None and not (steps.dtype.kind in "iu" and np.all(steps < MAX_STEPS_LIMIT)):
-        raise ValueError(f"max_steps: must be an integer in [1, 2**31), got {steps}")
-    for name in _POSITIVE:
-        value = _concrete(getattr(env_params, name))
-        if value is not None and not np.all(value > 0):
-            raise ValueError(f"{name}: must be positive, got {value}")
     floats = jax.dtypes.canonicalize_dtype(float)
     for name, (operation, *operands) in _DERIVED.items():
-        if all(values[operand] is not None for operand in operands):
-            values[name] = in_float64(operation, *(values[operand] for operand in operands))
-    cast = {name: check_representable(name, value, floats, name in _POSITIVE_IN_FLOATS)
-            for name, value in values.items() if value is not None}
-    low, high = cast.get("reset_low"), cast.get("reset_high")
-    if low is not None and high is not None and not np.all(low < high):
-        raise ValueError(f"reset_low: must be below reset_high in {floats}, got "
-                         f"{values['reset_low']} >= {values['reset_high']}")
-
-
-def _concrete(value: ArrayLike) -> np.ndarray | None:
-    """The value as numpy, or None when it is traced (inside jit, vmap or grad)."""
-    if isinstance(value, jax.core.Tracer):
-        return None
-    return np.asarray(value)
+        values = [common.concrete(getattr(env_params, operand)) for operand in operands]
+        if all(value is not None for value in values):
+            check_representable(name, in_float64(operation, *values), floats,
+                                name in _POSITIVE_DERIVED)
+    low, high = common.concrete(env_params.reset_low), common.concrete(env_params.reset_high)
+    if low is not None and high is not None and not np.all(low.astype(floats)
+                                                           < high.astype(floats)):
+        raise ValueError(f"reset_low: must be below reset_high in {floats}, got {low} >= {high}")
 
 
 def observe(state: CartPoleState) -> Observation:
@@ -437,6 +414,6 @@ def sincos_polynomials(r: Value) -> tuple[Value, Value]:
 
 def _check_action(action: ArrayLike) -> None:
     """In eager use, rejects any action other than 0 or 1."""
-    value = _concrete(action)
+    value = common.concrete(action)
     if value is not None and not np.all((value == 0) | (value == 1)):
         raise ValueError(f"action: must be 0 (push left) or 1 (push right), got {value}")
