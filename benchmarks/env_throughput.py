@@ -5,7 +5,11 @@ For N environments stepped together, with auto-reset:
 - jaxpg: `rollout.stream` with `rollout.random_policy`, jitted; one program per (N, T) whose scan
   length T is chosen so that a run takes about `--seconds`; compile time is reported apart. The
   random actions are drawn inside the program and so are counted.
-- jaxpg-sharded: the same program with its N environments split over every device. On a CPU the
+- jaxpg-user: `cartpole.step` as a researcher steps it in a program of their own: a `jit` of
+  `lax.scan` over steps of `vmap(cartpole.step)`, auto-reset by `vmap(cartpole.reset)` (keys from
+  `jax.random.split`) at every step, random actions from `jax.random.randint`; drawn inside the
+  program and counted.
+- jaxpg-sharded: the program of the jaxpg row with its N environments split over every device. On a CPU the
   script asks JAX for one device per usable core (`--xla_force_host_platform_device_count`,
   unless XLA_FLAGS already sets it), so that the parts run at once; every other program here
   still runs on one device, with the others idle beside it. N must divide evenly; other sizes are
@@ -46,8 +50,8 @@ from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv  # noqa: E
 
 from jaxpg import cartpole, rollout  # noqa: E402
 
-IMPLS = ("jaxpg", "jaxpg-sharded", "gymnax", "gymnasium-vector", "gymnasium", "jaxpg-gym-vector",
-         "jaxpg-gym")
+IMPLS = ("jaxpg", "jaxpg-user", "jaxpg-sharded", "gymnax", "gymnasium-vector", "gymnasium",
+         "jaxpg-gym-vector", "jaxpg-gym")
 SINGLE = ("gymnasium", "jaxpg-gym")  # one environment: N = 1 only
 ADAPTERS = {"jaxpg-gym-vector": "gymnasium-vector", "jaxpg-gym": "gymnasium"}  # and their peers
 MAX_SCAN_STEPS = 2**22  # bounds the [T, 2] array of step keys
@@ -79,6 +83,37 @@ def jaxpg_program(num_envs, num_steps, sharded=False):
     state, stats = jax.eval_shape(program, jax.random.PRNGKey(0))
     return jax.jit(program, out_shardings=(jax.tree.map(lambda _: split, state),
                                            jax.tree.map(lambda _: whole, stats)))
+
+
+def user_program(num_envs, num_steps):
+    """`key -> (state, episodes)`: N jaxpg envs as a researcher steps them: `vmap(cartpole.step)`
+    under `lax.scan`, auto-reset by `vmap(cartpole.reset)` in the same step, random actions from
+    `jax.random`."""
+    env_params = cartpole.V1
+    reset = jax.vmap(cartpole.reset, in_axes=(0, None))
+    step = jax.vmap(cartpole.step, in_axes=(0, 0, None))
+
+    def program(key):
+        key_reset, key_steps = jax.random.split(key)
+        _, state = reset(jax.random.split(key_reset, num_envs), env_params)
+
+        def one_step(carry, step_key):
+            state, episodes = carry
+            key_action, key_reset = jax.random.split(step_key)
+            action = jax.random.randint(key_action, (num_envs,), 0, 2)
+            _, state, _, terminated, truncated = step(state, action, env_params)
+            _, fresh = reset(jax.random.split(key_reset, num_envs), env_params)
+            done = terminated | truncated
+            state = jax.tree.map(lambda new, old: jnp.where(done, new, old), fresh, state)
+            return (state, episodes + done), None
+
+        (state, episodes), _ = jax.lax.scan(
+            one_step, (state, jnp.zeros(num_envs, jnp.int32)),
+            jax.random.split(key_steps, num_steps)
+        )
+        return state, episodes.sum()
+
+    return jax.jit(program)
 
 
 def gymnax_program(gymnax, num_envs, num_steps):
@@ -199,6 +234,8 @@ def single_env_block(env_id, block=1000):
 def measure(impl, num_envs, args, gymnax):
     if impl == "jaxpg":
         return measure_jax(jaxpg_program, num_envs, args)
+    if impl == "jaxpg-user":
+        return measure_jax(user_program, num_envs, args)
     if impl == "jaxpg-sharded":
         return measure_jax(lambda n, t: jaxpg_program(n, t, sharded=True), num_envs, args,
                            devices=jax.device_count())
@@ -304,7 +341,7 @@ def main():
                "compile_s"]
     common.print_table(rows, columns, title="steps/s (median run; compile timed apart)")
     ran = {row["impl"] for row in rows}
-    pairs = [*((ours, peer) for ours in ("jaxpg", "jaxpg-sharded")
+    pairs = [*((ours, peer) for ours in ("jaxpg", "jaxpg-user", "jaxpg-sharded")
                for peer in ("gymnasium-vector", "gymnax")), *ADAPTERS.items()]
     summaries = [ratios(rows, ours, peer) for ours, peer in pairs if ours in ran and peer in ran]
     print()
