@@ -110,6 +110,19 @@ def test_reset_is_uniform_within_bounds():
         assert scipy.stats.kstest(component, "uniform", args=(-0.05, 0.1)).pvalue > 1e-3
 
 
+@pytest.mark.parametrize("typed", [False, True])
+def test_reset_draws_jax_randoms_numbers(typed):
+    # A user's key gives the states `jax.random.uniform` draws from it, under vmap over keys and
+    # over bounds alike.
+    keys = jax.random.split(jax.random.key(3) if typed else jax.random.PRNGKey(3), 64)
+    low = jnp.linspace(-0.5, -0.05, 64)
+    _, state = jax.jit(jax.vmap(lambda key, low: cartpole.reset(
+        key, cartpole.V1.replace(reset_low=low))))(keys, low)
+    expected = jax.vmap(lambda key, low: jax.random.uniform(
+        key, (4,), minval=low, maxval=0.05))(keys, low)
+    np.testing.assert_array_equal(state.to_array(), expected)
+
+
 @pytest.mark.parametrize("env, limit", [("CartPole-v1", 500), ("CartPole-v0", 200)])
 def test_truncation_at_the_step_limit(env, limit):
     env_params = cartpole.make_params(env)

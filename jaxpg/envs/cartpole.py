@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxpg import rng
 from jaxpg.envs import common
 from jaxpg.types import ArrayLike, Observation, PRNGKey
 from jaxpg.validation import check_choice, check_representable, in_float64
@@ -244,9 +245,9 @@ def reset(key: PRNGKey, env_params: CartPoleParams) -> tuple[Observation, CartPo
       (obs `[4]`, state with `[]` leaves), in the default float dtype.
     """
     check_params(env_params)
-    values = jax.random.uniform(
-        key, (4,), minval=env_params.reset_low, maxval=env_params.reset_high
-    )
+    # `jax.random.uniform`'s numbers, hashed by elementwise arithmetic that XLA fuses into the
+    # program rather than by JAX's loop of kernels (`jaxpg.rng`).
+    values = rng.uniform(key, (4,), minval=env_params.reset_low, maxval=env_params.reset_high)
     state = CartPoleState.from_array(values)
     return observe(state), state
 
