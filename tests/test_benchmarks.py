@@ -5,6 +5,7 @@ No timing here: benchmarks are scripts, run by hand.
 
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 
@@ -148,3 +149,16 @@ def test_the_sharded_stream_steps_as_one_device():
                             capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr
     assert int(result.stdout) > 64  # every environment ended an episode, many several
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc builds the C program")
+def test_limit_builds_the_c_program_and_reads_its_table(tmp_path):
+    import limit
+
+    rows, output = limit.run_limit(limit.build("avx2", tmp_path), runs=16, repeats=1)
+    assert [(row["runs"], row["threads"]) for row in rows] == [(16, 1), (16, 2), (1, 1)]
+    # 16 runs of 150 iterations x 10 episodes take at least 8 steps each (no episode of
+    # CartPole ends sooner) and at most 200.
+    assert 16 * 1500 * 8 <= rows[0]["real_steps"] <= 16 * 1500 * 200
+    assert rows[0]["real_steps"] == rows[1]["real_steps"]  # the same runs on 1 and 2 threads
+    assert all(row["run_s"] > 0 for row in rows), output
