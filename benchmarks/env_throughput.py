@@ -9,11 +9,11 @@ For N environments stepped together, with auto-reset:
   `lax.scan` over steps of `vmap(cartpole.step)`, auto-reset by `vmap(cartpole.reset)` (keys from
   `jax.random.split`) at every step, random actions from `jax.random.randint`; drawn inside the
   program and counted.
-- jaxpg-sharded: the program of the jaxpg row with its N environments split over every device. On a CPU the
-  script asks JAX for one device per usable core (`--xla_force_host_platform_device_count`,
-  unless XLA_FLAGS already sets it), so that the parts run at once; every other program here
-  still runs on one device, with the others idle beside it. N must divide evenly; other sizes are
-  skipped, with a line that says so.
+- jaxpg-sharded: the program of the jaxpg row with its N environments split over every device.
+  On a CPU the script asks JAX for one device per usable core
+  (`--xla_force_host_platform_device_count`, unless XLA_FLAGS already sets it), so that the parts
+  run at once; every other program here still runs on one device, with the others idle beside it.
+  N must divide evenly; other sizes are skipped, with a line that says so.
 - gymnax (when importable): `CartPole-v1` with `vmap` over environments and `lax.scan` over time,
   as gymnax's documentation does; the auto-reset is gymnax's own `step`. Actions are drawn in bulk
   inside the program, as for jaxpg, and counted.
