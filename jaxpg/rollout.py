@@ -385,8 +385,8 @@ def random_policy(obs: Observation, key: PRNGKey, env_params: Any = cartpole.V1)
 
 STREAM_CHUNK = 8  # steps per draw of reset states: shorter than CartPole's shortest episode
 
-# A stream's carry within a chunk: obs, state, fresh reset states, which environments used theirs,
-# episodes and total return per environment.
+# A stream's carry within a chunk: obs, state, fresh reset states, how many times each environment
+# reset in the chunk, episodes and total return per environment.
 _StepCarry = tuple[Observation, StreamState, Any, jax.Array, jax.Array, jax.Array]
 # Between chunks: obs, state, episodes, total return.
 _ChunkCarry = tuple[Observation, StreamState, jax.Array, jax.Array]
@@ -402,7 +402,7 @@ def stream(key: PRNGKey, policy: StreamPolicy, env_params: Any, num_envs: int,
     Reset states are drawn once per environment every `STREAM_CHUNK` steps rather than every step:
     an episode of the default CartPole lasts at least 8 steps (and of the other tasks far longer),
     so an environment resets at most once in a chunk. One that resets twice (with other
-    `env_params`) draws again for that step.
+    `env_params`) draws again for that step: such a chunk is played again, checking every step.
 
     Args:
       key: PRNG key.
@@ -417,33 +417,46 @@ def stream(key: PRNGKey, policy: StreamPolicy, env_params: Any, num_envs: int,
     key_reset, key_steps = jax.random.split(key)
     obs, state = stream_reset(key_reset, num_envs, env_params)
 
-    def one_step(carry: _StepCarry, step_key: PRNGKey) -> tuple[_StepCarry, None]:
-        """One step of every environment, `fresh` holding the states of those that reset."""
-        obs, state, fresh, used, episodes, total = carry
-        again = state.prev_done & used
-        fresh = jax.lax.cond(
-            jnp.any(again),
-            lambda: _select(
-                again, reset_batch(jax.random.fold_in(step_key, 1), num_envs, env_params)[1], fresh
-            ),
-            lambda: fresh,
-        )
-        used = used | state.prev_done
+    def one_step(carry: _StepCarry, step_key: PRNGKey, checked: bool
+                 ) -> tuple[_StepCarry, None]:
+        """One step of every environment, `fresh` holding the states of those that reset; if
+        `checked`, one that resets a second time in the chunk draws a state of its own."""
+        obs, state, fresh, resets, episodes, total = carry
+        if checked:
+            again = state.prev_done & (resets > 0)
+            fresh = jax.lax.cond(
+                jnp.any(again),
+                lambda: _select(again, reset_batch(jax.random.fold_in(step_key, 1), num_envs,
+                                                   env_params)[1], fresh),
+                lambda: fresh,
+            )
+        resets = resets + state.prev_done
         action = policy(obs, step_key)
         obs, state, reward, terminated, truncated = _autoreset(fresh, state, action, env_params)
         episodes = episodes + (terminated | truncated)
-        return (obs, state, fresh, used, episodes, total + reward), None
+        return (obs, state, fresh, resets, episodes, total + reward), None
 
     def one_chunk(carry: _ChunkCarry, chunk_key: PRNGKey, length: int) -> tuple[_ChunkCarry, None]:
         """`length` steps, with reset states drawn once for them."""
         key_fresh, key_steps = rng.split(chunk_key)
         _, fresh = reset_batch(key_fresh, num_envs, env_params)
-        used = jnp.zeros(num_envs, dtype=bool)
-        obs, state, episodes, total = carry
-        (obs, state, _, _, episodes, total), _ = jax.lax.scan(
-            one_step, (obs, state, fresh, used, episodes, total), rng.split(key_steps, length)
-        )
-        return (obs, state, episodes, total), None
+        step_keys = rng.split(key_steps, length)
+
+        def play(checked: bool) -> tuple[_ChunkCarry, jax.Array]:
+            """The chunk's steps: (carry, resets `[N]` of each environment)."""
+            obs, state, episodes, total = carry
+            resets = jnp.zeros(num_envs, jnp.int32)
+            (obs, state, _, resets, episodes, total), _ = jax.lax.scan(
+                functools.partial(one_step, checked=checked),
+                (obs, state, fresh, resets, episodes, total), step_keys)
+            return (obs, state, episodes, total), resets
+
+        # Unchecked: the check is a reduction over every environment at every step (across
+        # devices when the environments are split over them) and a branch. A chunk in which an
+        # environment reset twice, rare, is played again, checked (docs/performance.md).
+        played, resets = play(checked=False)
+        return jax.lax.cond(jnp.any(resets > 1), lambda: play(checked=True)[0],
+                            lambda: played), None
 
     num_chunks, rest = divmod(num_steps, STREAM_CHUNK)
     chunk_keys = rng.split(key_steps, num_chunks + 1)

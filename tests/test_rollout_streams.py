@@ -68,6 +68,24 @@ def test_stream_of_short_episodes_counts_every_episode(name):
     assert np.isfinite(float(stats.total_return))
 
 
+def test_an_environment_resetting_every_other_step_draws_a_new_state_each_time():
+    """Episodes of one step: an environment resets at steps 1, 3, 5 and 7 of its first chunk of
+    STREAM_CHUNK = 8 steps, each time to a state of its own, within the reset bounds."""
+    env_params = cartpole.V1.replace(max_steps=1)
+    stream = jax.jit(rollout.stream, static_argnums=(1, 3, 4))
+    resets = []
+    for num_steps in (2, 4, 6, 8):  # the stream's steps 0 to num_steps - 1, ending on a reset
+        state, stats = stream(jax.random.PRNGKey(8), rollout.random_policy, env_params, 4,
+                              num_steps)
+        assert int(stats.episodes) == 4 * num_steps // 2
+        np.testing.assert_array_equal(state.env_state.time, 0)
+        resets.append(np.asarray(state.env_state.to_array()))
+    resets = np.stack(resets)  # [4 resets, 4 environments, 4 values]
+    assert np.all(np.abs(resets) <= 0.05)
+    for env in range(4):
+        assert len({tuple(values) for values in resets[:, env]}) == 4
+
+
 @pytest.mark.parametrize("name", ["Acrobot-v1", "MountainCar-v0"])
 def test_stream_returns_the_rewards_of_its_steps(name):
     """-1 on every step of these tasks but a reset step (0) and a goal (none within 5 steps)."""
