@@ -53,8 +53,8 @@ def test_autoreset_step_steps_or_resets_each_environment(name):
 
 @pytest.mark.parametrize("name", TASKS)
 def test_stream_of_short_episodes_counts_every_episode(name):
-    """Episodes truncated after 5 steps, which no task ends sooner from its reset states: every
-    environment resets twice in some chunks of STREAM_CHUNK = 8 steps."""
+    """Episodes truncated after 5 steps, which no task ends sooner from its reset states: shorter
+    than a chunk of STREAM_CHUNK = 8 steps."""
     num_envs, num_steps, limit = 16, 3 * rollout.STREAM_CHUNK + 5, 5
     env_params = task_params(name, max_steps=limit)
     policy = functools.partial(rollout.random_policy, env_params=env_params)
