@@ -5,7 +5,7 @@ runs whose arrays carry a trailing run axis `[..., R]`, where XLA's CPU backend 
 them (`jax.vmap` moves that axis to the front of matrix products and reshapes instead). On the way,
 the operations whose rounding depends on the shape of the whole array are written in a fixed
 order: sums (`reduce_sum`, and the contractions of matrix products) add a long axis one entry
-after another in a loop, a short one as a chain of additions or by halving (`sums.invariant_sum`).
+after another in a loop, a short one as chains of additions or by halving (`sums.invariant_sum`).
 So a run rounds the same alone (no run axis) as beside any number of others, for any policy, loss
 or optimizer written in JAX.
 
@@ -209,7 +209,7 @@ def _sum(x: Array, axes: Sequence[int]) -> Array:
     if not axes:
         return x
     x = jnp.asarray(x)
-    if x.shape[axes[0]] > LOOPED_CONTRACTION:
+    if x.shape[axes[0]] > LOOPED_SUM:
         x = jnp.moveaxis(x, axes[0], 0)
         rest = tuple(a + (a < axes[0]) - 1 for a in axes[1:])
 
@@ -221,18 +221,20 @@ def _sum(x: Array, axes: Sequence[int]) -> Array:
     return sums.invariant_sum(x, axes)
 
 
-LOOPED_CONTRACTION = 64  # a contracting axis longer than this is summed in a loop, in order
+LOOPED_SUM = 64  # a summed axis longer than this is summed in a loop, one entry at a time
+LOOPED_CONTRACTION = 64  # a product's contracting axis longer than this: one entry per kernel
+GROUP = 8  # the multiply-adds of a shorter one chained in one kernel (a longer chain is slower)
 
 
 def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     """`lax.dot_general` as products summed in a fixed order over the contracting axes.
 
-    Each operand is laid out as [contracting, batch, free] (plus the run axis), expanded against
-    the other's free axes. Products are summed over the first contracting axis one entry after
-    another: in a chain of multiply-adds where it is short (a layer's input features: XLA fuses
-    the chain into one kernel), in a loop where it is long (a batch of steps: the products of one
-    entry at a time in memory, rather than of all at once); then over the other contracting axes
-    by halving.
+    Over the first contracting axis the products are added one entry after another, in chains of
+    multiply-adds that XLA fuses into one kernel each, the chains after the first in a loop; then
+    they are summed over the other contracting axes by halving. Each entry's products are sliced
+    out of the operands before they are laid out as [other contracting, batch, free] (plus the run
+    axis) and expanded against the other operand's free axes, so that no whole operand is
+    transposed.
     """
     (x, x_batched), (y, y_batched) = ins
     (x_contract, y_contract), (x_batch, y_batch) = params["dimension_numbers"]
@@ -240,26 +242,47 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     x_free = [a for a in range(x_ndim) if a not in x_contract and a not in x_batch]
     y_free = [a for a in range(y_ndim) if a not in y_contract and a not in y_batch]
     contract = len(x_contract)
-    x = _arranged(x, x_batched, [*x_contract, *x_batch, *x_free],
-                  expand_at=x_ndim, count=len(y_free))
-    y = _arranged(y, y_batched, [*y_contract, *y_batch, *y_free],
-                  expand_at=contract + len(y_batch), count=len(x_free))
-    if x_batched != y_batched:
-        x, y = (_lift(x, x_batched, runs), _lift(y, y_batched, runs))
-    if not contract:
-        result = x * y
-    elif x.shape[0] > LOOPED_CONTRACTION:
-        def add(i: Array, total: Array) -> Array:
-            """`total` plus the products of entry `i` of the first contracting axis."""
-            return total + (lax.dynamic_index_in_dim(x, i, keepdims=False)
-                            * lax.dynamic_index_in_dim(y, i, keepdims=False))
+    x_layout = (x_batched, [*x_contract, *x_batch, *x_free], x_ndim, len(y_free))
+    y_layout = (y_batched, [*y_contract, *y_batch, *y_free], contract + len(y_batch), len(x_free))
 
-        result = _sum(lax.fori_loop(1, x.shape[0], add, x[0] * y[0]), tuple(range(contract - 1)))
-    else:  # a few features: one fused chain of multiply-adds, nothing in memory between them
-        result = x[0] * y[0]
-        for i in range(1, x.shape[0]):
-            result = result + x[i] * y[i]
-        result = _sum(result, tuple(range(contract - 1)))
+    def products(operands: tuple[Array, Array], i: int | None) -> Array:
+        """The products of entry `i` of the operands' first contracting axis (of all, for
+        None)."""
+        terms = []
+        for v, axes, layout in zip(operands, (x_contract, y_contract), (x_layout, y_layout)):
+            arranged = _arranged(v if i is None else lax.slice_in_dim(v, i, i + 1, axis=axes[0]),
+                                 *layout)
+            terms.append(_lift(arranged, layout[0], runs) if x_batched != y_batched
+                         else arranged)
+        return terms[0] * terms[1] if i is None else terms[0][0] * terms[1][0]
+
+    if not contract:
+        return _typed(products((x, y), None), params)
+    entries = np.shape(x)[x_contract[0]]
+    # The entries chained in one kernel: one at a time over a long axis (a batch of steps, the
+    # products in memory), all of them beside other contracting axes, else `GROUP`.
+    size = 1 if entries > LOOPED_CONTRACTION else entries if contract > 1 else GROUP
+    first = entries % size or size
+    result = products((x, y), 0)
+    for i in range(1, first):
+        result = result + products((x, y), i)
+
+    def add_group(g: Array, total: Array) -> Array:
+        """`total` plus the products of the entries of group `g` after the first, in order."""
+        start = first + g * size
+        group = (lax.dynamic_slice_in_dim(x, start, size, axis=x_contract[0]),
+                 lax.dynamic_slice_in_dim(y, start, size, axis=y_contract[0]))
+        for i in range(size):
+            total = total + products(group, i)
+        return total
+
+    if entries > first:
+        result = lax.fori_loop(0, (entries - first) // size, add_group, result)
+    return _typed(_sum(result, tuple(range(contract - 1))), params)
+
+
+def _typed(result: Array, params: dict[str, Any]) -> Array:
+    """A product's `result` in the dtype its equation asks for, if any."""
     dtype = params.get("preferred_element_type")
     return result if dtype is None else result.astype(dtype)
 

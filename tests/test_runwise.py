@@ -78,6 +78,29 @@ def test_a_run_alone_rounds_as_among_others(runs):
         chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., run], together))
 
 
+@pytest.mark.parametrize("features", [5, 20, 64, 100])
+def test_a_wide_product_rounds_alone_as_among_others(features):
+    """Matrix products of fewer and more features than one chain of multiply-adds holds
+    (`runwise.GROUP`: chains in a loop) or than `runwise.LOOPED_CONTRACTION` (one feature at a
+    time), and their gradients over 20 steps of 3 episodes: a run alone rounds as among others,
+    and equals `jax.vmap`'s to rounding."""
+    keys = jax.random.split(jax.random.PRNGKey(2), 2)
+    weights = jax.random.normal(keys[0], (features, features, RUNS)) / np.sqrt(features)
+    obs = jax.random.normal(keys[1], (20, 3, features, RUNS))
+
+    def loss(weights, obs):
+        hidden = jnp.tanh(obs @ weights)
+        return jnp.mean(jnp.square(hidden @ weights.T))
+
+    value_and_grad = jax.value_and_grad(loss)
+    together = jax.jit(runwise(value_and_grad, True))(weights, obs)
+    chex.assert_trees_all_close(together, _runs_last(value_and_grad, weights, obs),
+                                rtol=1e-5, atol=1e-6)
+    for run in (0, RUNS - 1):
+        alone = jax.jit(runwise(value_and_grad, False))(weights[..., run], obs[..., run])
+        chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., run], together))
+
+
 def test_a_long_sum_adds_in_order():
     x = np.random.default_rng(0).normal(size=(300, 2)).astype(np.float32) * 1e3
     in_order = x[0].copy()
