@@ -8,8 +8,9 @@ Rows, each timed in this one process (first call, compiling included, then the b
 - `mlp-2x64`, `plain-2x64`: the same with two layers of 64.
 - `mlp-reward-to-go`, `mlp-baseline`: the 32x32 MLP with the other built-in losses.
 
-Every row runs in this process, so the plain trainer runs under the XLA setting that `sweep` gives
-the process (`jaxpg.xla_options.configure_unstarted`). Also:
+Every row runs in this process under the `jaxpg` command's XLA setting for many runs
+(`jaxpg.xla_options.configure_xla()`, set before JAX starts, as `sweep` sets it in a fresh
+process), the plain trainer too. Also:
 
 - `--against DIR`: the default network at the book's settings, 1 seed (`train`) and 1024 seeds
   (`sweep`), each in a fresh process, alternating between this checkout and the one in DIR (an
@@ -39,7 +40,7 @@ import jax
 import numpy as np
 import plain_jax
 
-from jaxpg import TrainConfig, sweep
+from jaxpg import TrainConfig, sweep, xla_options
 
 ROWS = {
     "mlp": dict(hidden=(32, 32)),
@@ -166,6 +167,7 @@ def main():
     args = parser.parse_args()
     if args.quick:
         args.seeds, args.iterations, args.repeats, args.rounds = "4", 3, 1, 1
+    xla_options.configure_xla()  # before the header starts JAX: as `sweep` in a fresh process
     common.print_header("a researcher's network: jaxpg's engine against plain JAX")
     rows = [] if args.rows == "none" else [
         time_row(row, int(seeds), args.iterations, args.repeats)

@@ -148,7 +148,7 @@ def _apply(eqn: core.JaxprEqn, ins: list[_Value], runs: int | None) -> list[_Val
         return _evaluate(closed.jaxpr, closed.consts, ins, runs)
     if name == "reduce_sum":
         return [(_sum(values[0], params["axes"]), ins[0][1])]
-    if name == "scan" and any_batched:
+    if name == "scan" and (any_batched or runs is None):
         return _scan(ins, params, runs)
     if name == "dot_general":
         return [(_dot(ins, params, runs), any_batched)]
@@ -170,22 +170,28 @@ def _apply(eqn: core.JaxprEqn, ins: list[_Value], runs: int | None) -> list[_Val
 
 
 def _scan(ins: list[_Value], params: dict[str, Any], runs: int | None) -> list[_Value]:
-    """`lax.scan` whose body is evaluated by `runwise` too, every carry and output with the run
-    axis (the scanned axis stays first, the run axis last)."""
+    """`lax.scan` whose body is evaluated by `runwise` too: for several runs, every carry and
+    output with the run axis (the scanned axis stays first, the run axis last); for a run alone
+    (`runs` None), without."""
     body, consts = params["jaxpr"], ins[:params["num_consts"]]
-    num_carry = params["num_carry"]
-    carry = [_lift(v, b, runs) for v, b in ins[len(consts):len(consts) + num_carry]]
+    num_carry, batched = params["num_carry"], runs is not None
+
+    def lifted(values: Sequence[_Value]) -> list[Any]:
+        """The values, with the run axis for several runs."""
+        return [_lift(v, b, runs) if batched else v for v, b in values]
+
+    carry = lifted(ins[len(consts):len(consts) + num_carry])
     xs = ins[len(consts) + num_carry:]
 
     def step(carry: list[Array], x: list[Any]) -> tuple[list[Array], list[Array]]:
-        """One step of the body, its outputs with the run axis."""
-        args = [*consts, *((c, True) for c in carry), *zip(x, (b for _, b in xs))]
-        outs = [_lift(v, b, runs) for v, b in _evaluate(body.jaxpr, body.consts, args, runs)]
+        """One step of the body, its outputs with the run axis for several runs."""
+        args = [*consts, *((c, batched) for c in carry), *zip(x, (b for _, b in xs))]
+        outs = lifted(_evaluate(body.jaxpr, body.consts, args, runs))
         return outs[:num_carry], outs[num_carry:]
 
     carry, ys = lax.scan(step, carry, [v for v, _ in xs], length=params["length"],
                          reverse=params["reverse"], unroll=params["unroll"])
-    return [(out, True) for out in (*carry, *ys)]
+    return [(out, batched) for out in (*carry, *ys)]
 
 
 def _bind(eqn: core.JaxprEqn, *values: Any) -> list[Any]:

@@ -98,25 +98,6 @@ def test_bad_epochs_and_minibatches_are_named(changes, match):
         TrainConfig(**changes)
 
 
-def test_ppo_of_several_updates_trains_alone_as_in_a_sweep_to_rounding():
-    """Several updates in one iteration are not yet bit for bit alone and in a sweep (a few units
-    in the last place; README): in the updates' loop, LLVM fuses a multiplication and an addition
-    into one rounding in one layout's kernels and not in the other's. To rounding, on a wide
-    network, seeds 0 to 4 alone and in one sweep."""
-    config = dataclasses.replace(SMALL, loss=losses.PPO(losses.ValueNetwork((32,))),
-                                 hidden=(32,), activation="tanh", epochs=2, minibatches=3)
-    together = sweep(config, seeds=range(5), show_progress=False)
-    for s in range(5):
-        alone = train(config, seed=s, show_progress=False)
-        trained = (alone.policy_params, alone.critic_params)
-        beside = jax.tree.map(lambda leaf: leaf[0, s],
-                              (together.policy_params, together.critic_params))
-        for got, want in zip(jax.tree.leaves(trained), jax.tree.leaves(beside)):
-            np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
-    # That it learns to balance is the README's example (tests/test_readme.py).
-    assert set(together.metrics.extra) == {"approx_kl", "clip_fraction", "value_loss"}
-
-
 class BookModule(nn.Module):
     """The default network's shape as a user writes it; `outputs` logits per observation."""
 
@@ -155,6 +136,9 @@ def _clipped_adam(learning_rate):
     {"policy": BookModule(), "optimizer": _clipped_adam},
     {"optimizer": _clipped_adam},  # the default network, off the fast path
     {"loss": "ppo"},
+    {"loss": "ppo", "epochs": 2, "minibatches": 3},  # several updates: a scan over minibatches
+    {"loss": losses.PPO(losses.ValueNetwork((32,))), "hidden": (32,), "activation": "tanh",
+     "epochs": 4, "minibatches": 3},
 ])
 def test_a_seed_trains_alone_as_in_a_sweep(changes):
     """Parameters, returns and the critic bit for bit, gradient norms to one unit in the last
