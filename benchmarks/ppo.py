@@ -11,6 +11,8 @@ its interquartile mean, and the median first iteration whose trailing 10-iterati
 - `ppo-32`: a Dense(32, tanh) policy and critic, discount 0.99, 4 epochs x 2 minibatches, at
   0.01 (the README's setting).
 
+Every row runs under the `jaxpg` command's XLA setting for many runs (`xla_options.configure_xla`).
+
     python benchmarks/ppo.py                 # 64 seeds, 150 iterations
     python benchmarks/ppo.py --quick
 """
@@ -21,7 +23,7 @@ import time
 import common
 import numpy as np
 
-from jaxpg import TrainConfig, losses, stats, sweep
+from jaxpg import TrainConfig, losses, stats, sweep, xla_options
 
 ROWS = {
     "reinforce": TrainConfig(),
@@ -39,6 +41,7 @@ def main():
     args = parser.parse_args()
     if args.quick:
         args.seeds, args.iterations = 2, 12
+    xla_options.configure_xla()  # before the header starts JAX: as `sweep` in a fresh process
     common.print_header("PPO against REINFORCE on CartPole-v1")
     rows = []
     for name, config in ROWS.items():
