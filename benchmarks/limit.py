@@ -8,9 +8,10 @@ what they approximate). This script builds the one the CPU runs (or `--program`)
 its header, runs it, and in the same process times jaxpg's `sweep` of `--seeds` seeds and `train`
 of one seed: the first call (compiling) apart from the median of `--repeats` warm calls. The
 ratios are jaxpg's warm time over the C program's: `--seeds` seeds against the C program's R runs
-on every core, one seed against its R = 1 on one thread. jaxpg runs under the command's XLA
-setting for many runs (`xla_options.configure_xla()`, as `sweep` sets it in a fresh process; the
-command would give a run alone one thread, which a process also sweeping does not).
+on two threads (the program's own setting), one seed against its R = 1 on one thread. jaxpg runs
+under the command's XLA setting for many runs (`xla_options.configure_xla()`, as `sweep` sets it
+in a fresh process; the command would give a run alone one thread, which a process also sweeping
+does not).
 
     python benchmarks/limit.py                             # 1024 seeds, 3 repeats
     python benchmarks/limit.py --seeds 64 --repeats 1      # a quick check that everything runs

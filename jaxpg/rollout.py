@@ -402,7 +402,8 @@ def stream(key: PRNGKey, policy: StreamPolicy, env_params: Any, num_envs: int,
     Reset states are drawn once per environment every `STREAM_CHUNK` steps rather than every step:
     an episode of the default CartPole lasts at least 8 steps (and of the other tasks far longer),
     so an environment resets at most once in a chunk. One that resets twice (with other
-    `env_params`) draws again for that step: such a chunk is played again, checking every step.
+    `env_params`) draws again for that step: such a chunk is played again, checking every step
+    (under `jax.vmap` the choice is a select, so both plays always run).
 
     Args:
       key: PRNG key.

@@ -148,8 +148,8 @@ def _apply(eqn: core.JaxprEqn, ins: list[_Value], runs: int | None) -> list[_Val
         return _evaluate(closed.jaxpr, closed.consts, ins, runs)
     if name == "reduce_sum":
         return [(_sum(values[0], params["axes"]), ins[0][1])]
-    if name == "scan" and (any_batched or runs is None):
-        return _scan(ins, params, runs)
+    if name == "scan":  # shared by every run: evaluated as for a run alone
+        return _scan(ins, params, runs if any_batched else None)
     if name == "dot_general":
         return [(_dot(ins, params, runs), any_batched)]
     if not any_batched:
@@ -236,11 +236,13 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     """`lax.dot_general` as products summed in a fixed order over the contracting axes.
 
     Over the first contracting axis the products are added one entry after another, in chains of
-    multiply-adds that XLA fuses into one kernel each, the chains after the first in a loop; then
-    they are summed over the other contracting axes by halving. Each entry's products are sliced
-    out of the operands before they are laid out as [other contracting, batch, free] (plus the run
-    axis) and expanded against the other operand's free axes, so that no whole operand is
-    transposed.
+    multiply-adds that XLA fuses into one kernel each: `GROUP` entries per chain, the chains after
+    the first in a loop; one chain of every entry where other contracting axes follow (in chains
+    of `GROUP` there, a run alone rounded otherwise than among others); one entry per step of a
+    loop over a long axis. Then they are summed over the other contracting axes by halving. Each
+    entry's products are sliced out of the operands before they are laid out as [other
+    contracting, batch, free] (plus the run axis) and expanded against the other operand's free
+    axes, so that no whole operand is transposed.
     """
     (x, x_batched), (y, y_batched) = ins
     (x_contract, y_contract), (x_batch, y_batch) = params["dimension_numbers"]

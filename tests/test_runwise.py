@@ -101,6 +101,27 @@ def test_a_wide_product_rounds_alone_as_among_others(features):
         chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., run], together))
 
 
+def test_a_scan_rounds_alone_as_among_others_shared_or_not(runs):
+    """A scan over one run's arrays and a scan over arrays every run shares (a long sum in its
+    body), then combined with each run's own: a run alone rounds as among others."""
+    _, params, obs = runs
+    shared = jax.random.normal(jax.random.PRNGKey(3), (6, 1000)) * 100.0
+
+    def fn(kernel, obs, shared):
+        def step(total, row):
+            return total + jnp.sum(row), None
+
+        own, _ = jax.lax.scan(step, 0.0, obs.reshape(-1, 4))
+        common, _ = jax.lax.scan(step, 0.0, shared)
+        return own * kernel + common * kernel
+
+    kernel = params["params"]["Dense_0"]["kernel"]
+    together = jax.jit(runwise(fn, (True, True, False)))(kernel, obs, shared)
+    for run in (0, RUNS - 1):
+        alone = jax.jit(runwise(fn, False))(kernel[..., run], obs[..., run], shared)
+        chex.assert_trees_all_equal(alone, together[..., run])
+
+
 def test_a_long_sum_adds_in_order():
     x = np.random.default_rng(0).normal(size=(300, 2)).astype(np.float32) * 1e3
     in_order = x[0].copy()
