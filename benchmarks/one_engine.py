@@ -7,6 +7,8 @@ Rows, each timed in this one process (first call, compiling included, then the b
   book's loss; `plain` the same network and loss in `plain_jax.py` (`jit(vmap(scan(...)))`).
 - `mlp-2x64`, `plain-2x64`: the same with two layers of 64.
 - `mlp-reward-to-go`, `mlp-baseline`: the 32x32 MLP with the other built-in losses.
+- `book`: `sweep(TrainConfig())`, the book's network and loss on the built-in path; `plain-book`
+  the plain trainer with the same layer (Dense(5), elu) and two logits.
 
 Every row runs in this process under the `jaxpg` command's XLA setting for many runs
 (`jaxpg.xla_options.configure_xla()`, set before JAX starts, as `sweep` sets it in a fresh
@@ -44,24 +46,29 @@ from jaxpg import TrainConfig, sweep, xla_options
 
 ROWS = {
     "mlp": dict(hidden=(32, 32)),
-    "plain": dict(hidden=(32, 32), plain=True),
+    "plain": dict(hidden=(32, 32), activation="tanh", plain=True),
     "mlp-2x64": dict(hidden=(64, 64)),
-    "plain-2x64": dict(hidden=(64, 64), plain=True),
+    "plain-2x64": dict(hidden=(64, 64), activation="tanh", plain=True),
     "mlp-reward-to-go": dict(hidden=(32, 32), loss="reward-to-go"),
     "mlp-baseline": dict(hidden=(32, 32), loss="baseline"),
+    "book": dict(),
+    "plain-book": dict(hidden=(5,), activation="elu", plain=True),
 }
+PEERS = {"mlp-2x64": "plain-2x64", "book": "plain-book"}  # the plain row of each (else `plain`)
 
 
 def trainer(row, seeds, iterations):
     """`() -> median last-10 mean return` of a row's S seeds, trained once per call."""
     spec = dict(ROWS[row])
-    network = plain_jax.MLP(spec.pop("hidden"))
     if spec.pop("plain", False):
-        train = plain_jax.make_train(network, iterations=iterations)
+        train = plain_jax.make_train(plain_jax.MLP(spec["hidden"], spec["activation"]),
+                                     iterations=iterations)
         keys = np.arange(seeds)
         return lambda: float(np.median(
             np.asarray(jax.block_until_ready(train(keys))[1])[:, -10:].mean(axis=1)))
-    config = TrainConfig(policy=network, iterations=iterations, **spec)
+    if "hidden" in spec:  # a researcher's own module; the book's network on the built-in path
+        spec["policy"] = plain_jax.MLP(spec.pop("hidden"))
+    config = TrainConfig(iterations=iterations, **spec)
     return lambda: float(np.median(
         sweep(config, seeds=range(seeds), show_progress=False).summary.final_return))
 
@@ -173,8 +180,8 @@ def main():
         time_row(row, int(seeds), args.iterations, args.repeats)
         for seeds in args.seeds.split(",") for row in args.rows.split(",")]
     for row in rows:
-        plain = next((r for r in rows if r["seeds"] == row["seeds"] and r["row"] == (
-            "plain-2x64" if "2x64" in row["row"] else "plain")), None)
+        peer = row["row"] if row["row"].startswith("plain") else PEERS.get(row["row"], "plain")
+        plain = next((r for r in rows if r["seeds"] == row["seeds"] and r["row"] == peer), None)
         if plain is not None:
             row["speed_over_plain"] = plain["warm_s"] / row["warm_s"]
     if rows:

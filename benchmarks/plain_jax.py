@@ -19,14 +19,16 @@ from jaxpg import cartpole
 
 
 class MLP(nn.Module):
-    """Dense(size) -> tanh for each hidden size, then Dense(2): the logits of left and right."""
+    """Dense(size) -> activation (tanh unless named) for each hidden size, then Dense(2): the
+    logits of left and right."""
 
     hidden: Sequence[int] = (32, 32)
+    activation: str = "tanh"
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         for size in self.hidden:
-            obs = nn.tanh(nn.Dense(size)(obs))
+            obs = getattr(nn, self.activation)(nn.Dense(size)(obs))
         return nn.Dense(2)(obs)
 
 
