@@ -21,10 +21,8 @@ import argparse
 import pathlib
 import re
 import shutil
-import statistics
 import subprocess
 import tempfile
-import time
 
 import common
 
@@ -76,17 +74,11 @@ def run_limit(binary, runs, repeats):
 def time_jaxpg(label, call, config, repeats):
     """The first call of `call()` (compiling) and the median of `repeats` warm calls; the real
     steps of its result (`config`'s episodes x mean length, summed over iterations and runs)."""
-    start = time.perf_counter()
-    result = call()
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(max(1, repeats)):
-        start = time.perf_counter()
-        result = call()
-        times.append(time.perf_counter() - start)
+    first, _ = common.time_calls(call, repeats=1)
+    warm, result = common.time_calls(call, repeats=repeats)
     lengths = result.metrics.mean_length
     return {"impl": f"jaxpg {label}", "runs": lengths.size // config.iterations,
-            "first_call_s": first, "run_s": statistics.median(times), "times_s": times,
+            "first_call_s": first["min_s"], "run_s": warm["median_s"], "times_s": warm["times_s"],
             "real_steps": int(round(float(lengths.sum()) * config.episodes))}
 
 

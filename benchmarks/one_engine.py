@@ -35,7 +35,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 
 import common
 import jax
@@ -76,16 +75,10 @@ def trainer(row, seeds, iterations):
 def time_row(row, seeds, iterations, repeats):
     """The row's first call and best warm call, seconds, and its median last-10 return."""
     run = trainer(row, seeds, iterations)
-    start = time.perf_counter()
-    final = run()
-    first = time.perf_counter() - start
-    warm = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        warm.append(time.perf_counter() - start)
-    return {"row": row, "seeds": seeds, "first_s": first, "warm_s": min(warm),
-            "warm_all_s": warm, "median_last10": final}
+    first, final = common.time_calls(run, repeats=1)
+    warm, _ = common.time_calls(run, repeats=repeats)
+    return {"row": row, "seeds": seeds, "first_s": first["min_s"], "warm_s": warm["min_s"],
+            "warm_all_s": warm["times_s"], "median_last10": final}
 
 
 BOOK = """

@@ -215,7 +215,7 @@ def _sum(x: Array, axes: Sequence[int]) -> Array:
     if not axes:
         return x
     x = jnp.asarray(x)
-    if x.shape[axes[0]] > LOOPED_SUM:
+    if x.shape[axes[0]] > LOOPED:
         x = jnp.moveaxis(x, axes[0], 0)
         rest = tuple(a + (a < axes[0]) - 1 for a in axes[1:])
 
@@ -227,8 +227,7 @@ def _sum(x: Array, axes: Sequence[int]) -> Array:
     return sums.invariant_sum(x, axes)
 
 
-LOOPED_SUM = 64  # a summed axis longer than this is summed in a loop, one entry at a time
-LOOPED_CONTRACTION = 64  # a product's contracting axis longer than this: one entry per kernel
+LOOPED = 64  # an axis summed (or contracted) longer than this: a loop, one entry per step
 GROUP = 8  # the multiply-adds of a shorter one chained in one kernel (a longer chain is slower)
 
 
@@ -269,7 +268,7 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     entries = np.shape(x)[x_contract[0]]
     # The entries chained in one kernel: one at a time over a long axis (a batch of steps, the
     # products in memory), all of them beside other contracting axes, else `GROUP`.
-    size = 1 if entries > LOOPED_CONTRACTION else entries if contract > 1 else GROUP
+    size = 1 if entries > LOOPED else entries if contract > 1 else GROUP
     first = entries % size or size
     result = products((x, y), 0)
     for i in range(1, first):

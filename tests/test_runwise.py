@@ -81,9 +81,9 @@ def test_a_run_alone_rounds_as_among_others(runs):
 @pytest.mark.parametrize("features", [5, 20, 64, 100])
 def test_a_wide_product_rounds_alone_as_among_others(features):
     """Matrix products of fewer and more features than one chain of multiply-adds holds
-    (`runwise.GROUP`: chains in a loop) or than `runwise.LOOPED_CONTRACTION` (one feature at a
-    time), and their gradients over 20 steps of 3 episodes: a run alone rounds as among others,
-    and equals `jax.vmap`'s to rounding."""
+    (`runwise.GROUP`: chains in a loop) or than `runwise.LOOPED` (one feature at a time), and
+    their gradients over 20 steps of 3 episodes: a run alone rounds as among others, and equals
+    `jax.vmap`'s to rounding."""
     keys = jax.random.split(jax.random.PRNGKey(2), 2)
     weights = jax.random.normal(keys[0], (features, features, RUNS)) / np.sqrt(features)
     obs = jax.random.normal(keys[1], (20, 3, features, RUNS))
