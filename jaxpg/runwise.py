@@ -208,40 +208,69 @@ def _bound(eqn: core.JaxprEqn, values: Sequence[Any], batched: bool = False) -> 
 def _sum(x: Array, axes: Sequence[int]) -> Array:
     """`x` summed over `axes` (of one run's axes) in a fixed order.
 
-    Over the first of them one entry after another where it is long, then over the others by
-    halving.
+    Over the first of them one entry after another where it is long (`_in_order`), then over the
+    others by halving.
     """
     axes = tuple(axes)
     if not axes:
         return x
     x = jnp.asarray(x)
     if x.shape[axes[0]] > LOOPED:
-        x = jnp.moveaxis(x, axes[0], 0)
-        rest = tuple(a + (a < axes[0]) - 1 for a in axes[1:])
-
-        def add(i: Array, total: Array) -> Array:
-            """`total` plus entry `i` of the summed axis."""
-            return total + lax.dynamic_index_in_dim(x, i, keepdims=False)
-
-        return _sum(lax.fori_loop(1, x.shape[0], add, x[0]), rest)
+        rest = tuple(a - (a > axes[0]) for a in axes[1:])
+        total = _in_order(x.shape[axes[0]],
+                          lambda start, size: lax.dynamic_slice_in_dim(x, start, size, axes[0]),
+                          lambda group, i: lax.index_in_dim(group, i, axes[0], keepdims=False))
+        return _sum(total, rest)
     return sums.invariant_sum(x, axes)
 
 
-LOOPED = 64  # an axis summed (or contracted) longer than this: a loop, one entry per step
-GROUP = 8  # the multiply-adds of a shorter one chained in one kernel (a longer chain is slower)
+LOOPED = 64  # an axis summed (or contracted) longer than this: in a loop, `GROUP` entries a step
+GROUP = 8  # the additions chained in one kernel (a longer chain is slower)
+
+
+def _in_order(entries: int, fetch: Callable[[Any, int], Any],
+              term: Callable[[Any, int], Array]) -> Array:
+    """The sum of `entries` terms, added one after another: `GROUP` of them chained per kernel.
+
+    The first `entries % GROUP` (or `GROUP`) terms are added at once, the others `GROUP` per step
+    of a loop, each step's chain of additions (and the multiplications of a product's terms) fused
+    by XLA into one kernel. The order of additions is that of a loop over one entry at a time.
+
+    Args:
+      entries: how many terms.
+      fetch: `(start, size)` -> the operands of `size` consecutive terms from `start` (a traced
+        integer in the loop).
+      term: `(operands, i)` -> term `i` of the fetched ones, `i` static.
+    """
+    first = entries % GROUP or GROUP
+    group = fetch(0, first)
+    total = term(group, 0)
+    for i in range(1, first):
+        total = total + term(group, i)
+
+    def add_group(g: Array, total: Array) -> Array:
+        """`total` plus the terms of group `g` after the first, in order."""
+        group = fetch(first + g * GROUP, GROUP)
+        for i in range(GROUP):
+            total = total + term(group, i)
+        return total
+
+    if entries > first:
+        total = lax.fori_loop(0, (entries - first) // GROUP, add_group, total)
+    return total
 
 
 def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     """`lax.dot_general` as products summed in a fixed order over the contracting axes.
 
-    Over the first contracting axis the products are added one entry after another, in chains of
-    multiply-adds that XLA fuses into one kernel each: `GROUP` entries per chain, the chains after
-    the first in a loop; one chain of every entry where other contracting axes follow (in chains
-    of `GROUP` there, a run alone rounded otherwise than among others); one entry per step of a
-    loop over a long axis. Then they are summed over the other contracting axes by halving. Each
-    entry's products are sliced out of the operands before they are laid out as [other
-    contracting, batch, free] (plus the run axis) and expanded against the other operand's free
-    axes, so that no whole operand is transposed.
+    Over the first contracting axis the products are added one entry after another
+    (`_in_order`: chains of `GROUP` multiply-adds that XLA fuses into one kernel each, the chains
+    after the first in a loop); where other contracting axes follow a short first one, one chain
+    of all its entries (in chains of `GROUP` there, a run alone rounded otherwise than among
+    others). Then they are summed over the other contracting axes by halving. Each entry's
+    products are sliced out of the operands before they are laid out as [other contracting,
+    batch, free] (plus the run axis) and expanded against the other operand's free axes, so that
+    no whole operand is transposed.
     """
     (x, x_batched), (y, y_batched) = ins
     (x_contract, y_contract), (x_batch, y_batch) = params["dimension_numbers"]
@@ -266,25 +295,19 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     if not contract:
         return _typed(products((x, y), None), params)
     entries = np.shape(x)[x_contract[0]]
-    # The entries chained in one kernel: one at a time over a long axis (a batch of steps, the
-    # products in memory), all of them beside other contracting axes, else `GROUP`.
-    size = 1 if entries > LOOPED else entries if contract > 1 else GROUP
-    first = entries % size or size
-    result = products((x, y), 0)
-    for i in range(1, first):
-        result = result + products((x, y), i)
 
-    def add_group(g: Array, total: Array) -> Array:
-        """`total` plus the products of the entries of group `g` after the first, in order."""
-        start = first + g * size
-        group = (lax.dynamic_slice_in_dim(x, start, size, axis=x_contract[0]),
-                 lax.dynamic_slice_in_dim(y, start, size, axis=y_contract[0]))
-        for i in range(size):
-            total = total + products(group, i)
-        return total
+    def fetch(start: Any, size: int) -> tuple[Array, Array]:
+        """The operands' entries `start` to `start + size` of their first contracting axis."""
+        return (lax.dynamic_slice_in_dim(x, start, size, axis=x_contract[0]),
+                lax.dynamic_slice_in_dim(y, start, size, axis=y_contract[0]))
 
-    if entries > first:
-        result = lax.fori_loop(0, (entries - first) // size, add_group, result)
+    if contract > 1 and entries <= LOOPED:  # beside other contracting axes: one chain of all
+        operands = fetch(0, entries)
+        result = products(operands, 0)
+        for i in range(1, entries):
+            result = result + products(operands, i)
+    else:
+        result = _in_order(entries, fetch, products)
     return _typed(_sum(result, tuple(range(contract - 1))), params)
 
 
