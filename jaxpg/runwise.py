@@ -22,6 +22,7 @@ are rewritten too.
 """
 
 import functools
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -273,10 +274,13 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     no whole operand is transposed.
     """
     (x, x_batched), (y, y_batched) = ins
-    (x_contract, y_contract), (x_batch, y_batch) = params["dimension_numbers"]
+    x, y, ((x_contract, y_contract), (x_batch, y_batch)) = _merged(
+        x, y, params["dimension_numbers"])
     x_ndim, y_ndim = np.ndim(x) - x_batched, np.ndim(y) - y_batched
     x_free = [a for a in range(x_ndim) if a not in x_contract and a not in x_batch]
     y_free = [a for a in range(y_ndim) if a not in y_contract and a not in y_batch]
+    x, (x_contract, x_batch, x_free) = _small_in_order(x, x_batched, (x_contract, x_batch, x_free))
+    y, (y_contract, y_batch, y_free) = _small_in_order(y, y_batched, (y_contract, y_batch, y_free))
     contract = len(x_contract)
     x_layout = (x_batched, [*x_contract, *x_batch, *x_free], x_ndim, len(y_free))
     y_layout = (y_batched, [*y_contract, *y_batch, *y_free], contract + len(y_batch), len(x_free))
@@ -309,6 +313,55 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     else:
         result = _in_order(entries, fetch, products)
     return _typed(_sum(result, tuple(range(contract - 1))), params)
+
+
+def _merged(x: Array, y: Array, dimension_numbers: Any) -> tuple[Array, Array, Any]:
+    """The operands of a product with consecutive contracting axes, the first long, merged into one.
+
+    A gradient's weights summed over steps and episodes `[T, E]` are then added one step and
+    episode after another, chained `GROUP` per kernel, rather than as `[E, ...]` totals over the
+    steps summed over the episodes at the end: a tenth of the totals in memory.
+
+    Returns:
+      (x, y, the dimension numbers of the merged operands).
+    """
+    (x_contract, y_contract), (x_batch, y_batch) = dimension_numbers
+    consecutive = all(list(axes) == list(range(axes[0], axes[0] + len(axes)))
+                      for axes in (x_contract, y_contract))
+    if len(x_contract) < 2 or not consecutive or np.shape(x)[x_contract[0]] <= LOOPED:
+        return x, y, dimension_numbers
+
+    def merged(v: Array, axes: Sequence[int]) -> Array:
+        """`v` with `axes` merged into one."""
+        shape = np.shape(v)
+        return lax.reshape(v, (*shape[:axes[0]], math.prod(shape[a] for a in axes),
+                               *shape[axes[-1] + 1:]))
+
+    def shifted(dims: Sequence[int], axes: Sequence[int]) -> list[int]:
+        """`dims` after `axes` are merged into one."""
+        return [d - len(axes) + 1 if d > axes[-1] else d for d in dims]
+
+    return merged(x, x_contract), merged(y, y_contract), (
+        ([x_contract[0]], [y_contract[0]]), (shifted(x_batch, x_contract),
+                                             shifted(y_batch, y_contract)))
+
+
+def _small_in_order(v: Array, batched: bool, groups: tuple[Sequence[int], ...]
+                    ) -> tuple[Array, list[list[int]]]:
+    """`v` with one run's axes in the order of `groups` (contracting, batch, free) if it is small.
+
+    Small: no axis longer than `LOOPED`, as a weight matrix. Each entry of its first contracting
+    axis is then one contiguous slice, rather than a strided one read again by every product.
+
+    Returns:
+      (v, the groups' axes in it).
+    """
+    order = [a for group in groups for a in group]
+    if order == sorted(order) or max(np.shape(v)[:len(order)], default=0) > LOOPED:
+        return v, [list(group) for group in groups]
+    v = lax.transpose(v, (*order, *([len(order)] if batched else [])))
+    starts = np.cumsum([0, *map(len, groups)])
+    return v, [list(range(start, start + len(group))) for start, group in zip(starts, groups)]
 
 
 def _typed(result: Array, params: dict[str, Any]) -> Array:
