@@ -275,7 +275,7 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     """
     (x, x_batched), (y, y_batched) = ins
     x, y, ((x_contract, y_contract), (x_batch, y_batch)) = _merged(
-        x, y, params["dimension_numbers"])
+        (x, x_batched), (y, y_batched), params["dimension_numbers"])
     x_ndim, y_ndim = np.ndim(x) - x_batched, np.ndim(y) - y_batched
     x_free = [a for a in range(x_ndim) if a not in x_contract and a not in x_batch]
     y_free = [a for a in range(y_ndim) if a not in y_contract and a not in y_batch]
@@ -315,20 +315,28 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     return _typed(_sum(result, tuple(range(contract - 1))), params)
 
 
-def _merged(x: Array, y: Array, dimension_numbers: Any) -> tuple[Array, Array, Any]:
+def _merged(x_in: _Value, y_in: _Value, dimension_numbers: Any) -> tuple[Array, Array, Any]:
     """The operands of a product with consecutive contracting axes, the first long, merged into one.
 
-    A gradient's weights summed over steps and episodes `[T, E]` are then added one step and
-    episode after another, chained `GROUP` per kernel, rather than as `[E, ...]` totals over the
-    steps summed over the episodes at the end: a tenth of the totals in memory.
+    Where the product is large (more than `LOOPED` entries a run), as a gradient's weights
+    summed over steps and episodes `[T, E]`: they are then added one step and episode after
+    another, chained `GROUP` per kernel, rather than as `[E, ...]` totals over the steps summed
+    over the episodes at the end, which are E times as large in memory. A small product keeps
+    its `[E, ...]` totals: a tenth of the loop's steps.
 
     Returns:
       (x, y, the dimension numbers of the merged operands).
     """
+    (x, x_batched), (y, y_batched) = x_in, y_in
     (x_contract, y_contract), (x_batch, y_batch) = dimension_numbers
     consecutive = all(list(axes) == list(range(axes[0], axes[0] + len(axes)))
                       for axes in (x_contract, y_contract))
     if len(x_contract) < 2 or not consecutive or np.shape(x)[x_contract[0]] <= LOOPED:
+        return x, y, dimension_numbers
+    outputs = math.prod(np.shape(x)[:np.ndim(x) - x_batched]) * math.prod(
+        np.shape(y)[:np.ndim(y) - y_batched]) // math.prod(
+        np.shape(x)[a] for a in (*x_contract, *x_contract, *x_batch))
+    if outputs <= LOOPED:
         return x, y, dimension_numbers
 
     def merged(v: Array, axes: Sequence[int]) -> Array:
