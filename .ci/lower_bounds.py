@@ -69,11 +69,14 @@ def disagreements(pyproject_text, pins_text):
     problems += pin_problems
     for name in sorted(bounds.keys() | pins.keys()):
         if name not in pins:
-            problems.append(f"{name}: pyproject.toml declares >={bounds[name]}, lower-bounds.txt has no pin")
+            problems.append(f"{name}: pyproject.toml declares >={bounds[name]}, "
+                            "lower-bounds.txt has no pin")
         elif name not in bounds:
-            problems.append(f"{name}: lower-bounds.txt pins {pins[name]}, not a runtime dependency with a lower bound in pyproject.toml")
+            problems.append(f"{name}: lower-bounds.txt pins {pins[name]}, not a runtime dependency "
+                            "with a lower bound in pyproject.toml")
         elif not _same(pins[name], bounds[name]):
-            problems.append(f"{name}: pyproject.toml declares >={bounds[name]}, lower-bounds.txt pins {pins[name]}")
+            problems.append(f"{name}: pyproject.toml declares >={bounds[name]}, "
+                            f"lower-bounds.txt pins {pins[name]}")
     return problems
 
 
@@ -100,7 +103,8 @@ def main(argv):
     for problem in problems:
         print(problem, file=sys.stderr)
     if not problems:
-        print(f"lower bounds agree: {', '.join(f'{n}=={v}' for n, v in pinned(pins_text)[0].items())}")
+        agreed = ", ".join(f"{n}=={v}" for n, v in pinned(pins_text)[0].items())
+        print(f"lower bounds agree: {agreed}")
     return 1 if problems else 0
 
 

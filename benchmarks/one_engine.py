@@ -31,6 +31,7 @@ process), the plain trainer too. Also:
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -99,8 +100,11 @@ print(json.dumps(min(times)))
 
 def book_seconds(tree, seeds):
     """The best of three warm calls for the default network, in a fresh process of `tree`'s
-    jaxpg (None: this checkout's)."""
-    env = None if tree is None else {**__import__("os").environ, "PYTHONPATH": tree}
+    jaxpg (None: this checkout's), under that jaxpg's own XLA setting (`train` and `sweep` set it
+    where nothing else has)."""
+    env = {name: value for name, value in os.environ.items() if name != "XLA_FLAGS"}
+    if tree is not None:
+        env["PYTHONPATH"] = tree
     child = subprocess.run([sys.executable, "-c", BOOK, str(seeds)], capture_output=True,
                            text=True, check=True, env=env)
     return json.loads(child.stdout.splitlines()[-1])
