@@ -110,8 +110,9 @@ def compiled_program(config: TrainConfig) -> Program:
 INIT_OPTIONS: dict[str, Any] = {
     "xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 # A block of several runs iterates with 512-bit vectors (XLA's default is 256): faster, the same
-# bits (docs/performance.md), in a process without `xla_options.SETTING` too, which gives every
-# program of the process 512-bit vectors.
+# bits (docs/performance.md). A block of one run must not: with its loop compiled whole
+# (`jaxpg.xla_options`), 512-bit vectors round some of its episodes otherwise than the same run's
+# beside others.
 TOGETHER_OPTIONS: dict[str, Any] = {"xla_cpu_prefer_vector_width": 512}
 
 

@@ -2,14 +2,12 @@
 
 `configure_xla` sets environment variables that JAX reads when it starts its backends:
 
-- `SETTING`, added to `XLA_FLAGS`: two options of XLA's CPU backend (`BACKEND_OPTIONS`) and its
-  vector width (`VECTOR_WIDTH`). LLVM unrolls no loops, and a `while` loop whose bytes accessed are
-  under `WHOLE_LOOP_BYTES`, with no library call in it, compiles into one function rather than
-  kernel by kernel: the ten-iteration loop of the training program, of a run alone and of any
-  block of runs a CPU trains (`schedule.CPU_BLOCK`), is one function. A loop of more bytes (a
-  block of many more episodes or steps) stays kernel by kernel. Code is vectorised with 512-bit
-  vectors where the machine has them (a block's training program asks for them anyway,
-  `programs.TOGETHER_OPTIONS`): a run alone and an environment stream step faster.
+- `SETTING`, added to `XLA_FLAGS`: two options of XLA's CPU backend (`BACKEND_OPTIONS`). LLVM
+  unrolls no loops, and a `while` loop whose bytes accessed are under `WHOLE_LOOP_BYTES`, with no
+  library call in it, compiles into one function rather than kernel by kernel: the ten-iteration
+  loop of the training program, of a run alone and of any block of runs a CPU trains
+  (`schedule.CPU_BLOCK`), is one function. A loop of more bytes (a block of many more episodes
+  or steps) stays kernel by kernel.
 - For a process that trains one run at a time (`jaxpg train`), one thread for XLA's CPU client
   (`PJRT_NPROC=1`), so that XLA splits no kernel of a run over threads.
 
@@ -36,10 +34,8 @@ BACKEND_OPTIONS = {
     "xla_cpu_disable_loop_unrolling": "true",  # XLA reads its presence, whatever the value
     "xla_cpu_small_while_loop_byte_threshold": str(WHOLE_LOOP_BYTES),
 }
-# XLA's CPU backend vectorises with 512-bit vectors where the machine has them (its default: 256).
-VECTOR_WIDTH = "--xla_cpu_prefer_vector_width=512"
 SETTING = "--xla_backend_extra_options=" + ",".join(
-    f"{name}={value}" for name, value in BACKEND_OPTIONS.items()) + " " + VECTOR_WIDTH
+    f"{name}={value}" for name, value in BACKEND_OPTIONS.items())
 # Backend options at XLA's own values: in XLA_FLAGS, they keep `configure_xla` from adding SETTING.
 XLA_DEFAULTS = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
 

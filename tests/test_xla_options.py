@@ -92,8 +92,8 @@ def test_under_the_setting_seeds_train_alone_as_side_by_side():
 
     The programs of one run and of several are compiled apart, each into one function
     (`xla_cpu_small_while_loop_byte_threshold`, in the setting), and XLA can round them
-    differently: it did when a run alone still had a run axis of one entry, and, in earlier
-    programs, with 512-bit vectors, which the setting now gives both (docs/performance.md).
+    differently: it did when a run alone asked for 512-bit vectors, or still had a run axis of one
+    entry (docs/performance.md).
     """
     result = check_alone("--seeds", "21")
     assert result.returncode == 0, result.stdout + result.stderr
