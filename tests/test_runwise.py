@@ -81,12 +81,13 @@ def test_a_run_alone_rounds_as_among_others(runs):
 @pytest.mark.parametrize("features", [5, 20, 64, 100])
 def test_a_wide_product_rounds_alone_as_among_others(features):
     """Matrix products of fewer and more features than one chain of multiply-adds holds
-    (`runwise.GROUP`: chains in a loop) or than `runwise.LOOPED` (one feature at a time), and
-    their gradients over 20 steps of 3 episodes: a run alone rounds as among others, and equals
-    `jax.vmap`'s to rounding."""
+    (`runwise.GROUP`: chains in a loop) and than `runwise.LOOPED`, and their gradients over 100
+    steps of 3 episodes (the weights' summed as one axis of steps and episodes where they have
+    more than `LOOPED` entries, from 20 features, else per episode): a run alone rounds as among
+    others, and equals `jax.vmap`'s to rounding."""
     keys = jax.random.split(jax.random.PRNGKey(2), 2)
     weights = jax.random.normal(keys[0], (features, features, RUNS)) / np.sqrt(features)
-    obs = jax.random.normal(keys[1], (20, 3, features, RUNS))
+    obs = jax.random.normal(keys[1], (100, 3, features, RUNS))
 
     def loss(weights, obs):
         hidden = jnp.tanh(obs @ weights)
