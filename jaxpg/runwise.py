@@ -230,10 +230,10 @@ GROUP = 8  # the additions chained in one kernel (a longer chain is slower)
 
 
 def _in_order(entries: int, fetch: Callable[[Any, int], Any],
-              term: Callable[[Any, int], Array]) -> Array:
-    """The sum of `entries` terms, added one after another: `GROUP` of them chained per kernel.
+              term: Callable[[Any, int], Array], chain: int = GROUP) -> Array:
+    """The sum of `entries` terms, added one after another: `chain` of them chained per kernel.
 
-    The first `entries % GROUP` (or `GROUP`) terms are added at once, the others `GROUP` per step
+    The first `entries % chain` (or `chain`) terms are added at once, the others `chain` per step
     of a loop, each step's chain of additions (and the multiplications of a product's terms) fused
     by XLA into one kernel. The order of additions is that of a loop over one entry at a time.
 
@@ -242,8 +242,9 @@ def _in_order(entries: int, fetch: Callable[[Any, int], Any],
       fetch: `(start, size)` -> the operands of `size` consecutive terms from `start` (a traced
         integer in the loop).
       term: `(operands, i)` -> term `i` of the fetched ones, `i` static.
+      chain: the terms chained per kernel (`entries`: one chain, no loop).
     """
-    first = entries % GROUP or GROUP
+    first = entries % chain or chain
     group = fetch(0, first)
     total = term(group, 0)
     for i in range(1, first):
@@ -251,13 +252,13 @@ def _in_order(entries: int, fetch: Callable[[Any, int], Any],
 
     def add_group(g: Array, total: Array) -> Array:
         """`total` plus the terms of group `g` after the first, in order."""
-        group = fetch(first + g * GROUP, GROUP)
-        for i in range(GROUP):
+        group = fetch(first + g * chain, chain)
+        for i in range(chain):
             total = total + term(group, i)
         return total
 
     if entries > first:
-        total = lax.fori_loop(0, (entries - first) // GROUP, add_group, total)
+        total = lax.fori_loop(0, (entries - first) // chain, add_group, total)
     return total
 
 
@@ -305,13 +306,9 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
         return (lax.dynamic_slice_in_dim(x, start, size, axis=x_contract[0]),
                 lax.dynamic_slice_in_dim(y, start, size, axis=y_contract[0]))
 
-    if contract > 1 and entries <= LOOPED:  # beside other contracting axes: one chain of all
-        operands = fetch(0, entries)
-        result = products(operands, 0)
-        for i in range(1, entries):
-            result = result + products(operands, i)
-    else:
-        result = _in_order(entries, fetch, products)
+    # Beside other contracting axes, a short first one is one chain of all its entries.
+    result = _in_order(entries, fetch, products,
+                       entries if contract > 1 and entries <= LOOPED else GROUP)
     return _typed(_sum(result, tuple(range(contract - 1))), params)
 
 
@@ -333,9 +330,9 @@ def _merged(x_in: _Value, y_in: _Value, dimension_numbers: Any) -> tuple[Array, 
                       for axes in (x_contract, y_contract))
     if len(x_contract) < 2 or not consecutive or np.shape(x)[x_contract[0]] <= LOOPED:
         return x, y, dimension_numbers
-    outputs = math.prod(np.shape(x)[:np.ndim(x) - x_batched]) * math.prod(
-        np.shape(y)[:np.ndim(y) - y_batched]) // math.prod(
-        np.shape(x)[a] for a in (*x_contract, *x_contract, *x_batch))
+    x_shape, y_shape = np.shape(x)[:np.ndim(x) - x_batched], np.shape(y)[:np.ndim(y) - y_batched]
+    outputs = math.prod(size for a, size in enumerate(x_shape) if a not in x_contract) * math.prod(
+        size for a, size in enumerate(y_shape) if a not in (*y_contract, *y_batch))
     if outputs <= LOOPED:
         return x, y, dimension_numbers
 
