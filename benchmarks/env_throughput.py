@@ -42,6 +42,7 @@ if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", "")
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_"
                                f"device_count={common.usable_cores()}").strip()
 
+import env_pieces  # noqa: E402
 import gymnasium as gym  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -86,34 +87,10 @@ def jaxpg_program(num_envs, num_steps, sharded=False):
 
 
 def user_program(num_envs, num_steps):
-    """`key -> (state, episodes)`: N jaxpg envs as a researcher steps them: `vmap(cartpole.step)`
-    under `lax.scan`, auto-reset by `vmap(cartpole.reset)` in the same step, random actions from
-    `jax.random`."""
-    env_params = cartpole.V1
-    reset = jax.vmap(cartpole.reset, in_axes=(0, None))
-    step = jax.vmap(cartpole.step, in_axes=(0, 0, None))
-
-    def program(key):
-        key_reset, key_steps = jax.random.split(key)
-        _, state = reset(jax.random.split(key_reset, num_envs), env_params)
-
-        def one_step(carry, step_key):
-            state, episodes = carry
-            key_action, key_reset = jax.random.split(step_key)
-            action = jax.random.randint(key_action, (num_envs,), 0, 2)
-            _, state, _, terminated, truncated = step(state, action, env_params)
-            _, fresh = reset(jax.random.split(key_reset, num_envs), env_params)
-            done = terminated | truncated
-            state = jax.tree.map(lambda new, old: jnp.where(done, new, old), fresh, state)
-            return (state, episodes + done), None
-
-        (state, episodes), _ = jax.lax.scan(
-            one_step, (state, jnp.zeros(num_envs, jnp.int32)),
-            jax.random.split(key_steps, num_steps)
-        )
-        return state, episodes.sum()
-
-    return jax.jit(program)
+    """`key -> (state, episodes [N])`: N jaxpg envs as a researcher steps them, `env_pieces.py`'s
+    user loop: `vmap(cartpole.step)` under `lax.scan`, auto-reset by `vmap(cartpole.reset)` on
+    `split(key, N)` keys in the same step, `jax.random.randint` actions."""
+    return env_pieces.piece_program(env_pieces.pieces(num_envs)["user loop"], num_envs, num_steps)
 
 
 def gymnax_program(gymnax, num_envs, num_steps):
