@@ -9,6 +9,7 @@ written out one addition after another, so that a run rounds alike alone and bes
 """
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -104,20 +105,23 @@ def _total(x: Array) -> Array:
     return total
 
 
-def log_prob(dist: Any, action: Array) -> Array:
+def log_prob(dist: Any, action: Array,
+             log_sigmoid: Callable[[Array], Array] = jax.nn.log_sigmoid) -> Array:
     """log pi(action | obs) `[...]` of a policy's distribution.
 
     Args:
       dist: CartPole's logit of P(push left) `[...]` (then `log sigmoid(logit)` for action 0), a
         `Categorical` or a `Gaussian`.
       action: the actions `[...]`: int (0 pushes CartPole left), or float for a `Gaussian`.
+      log_sigmoid: the function CartPole's logit takes: `jax.nn`'s, or `fastmath`'s for the
+        hand-derived gradient.
 
     Returns:
       float `[...]`, the log-probability (density) of each action.
     """
     if isinstance(dist, Categorical | Gaussian):
         return dist.log_prob(action)
-    return jax.nn.log_sigmoid(jnp.where(action == 0, dist, -dist))
+    return log_sigmoid(jnp.where(action == 0, dist, -dist))
 
 
 def entropy(dist: Any) -> Array:

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import losses, policies, rollout, sums
+from jaxpg import fastmath, losses, policies, rollout, sums
 from jaxpg.types import Array, Params
 
 # The loop's carry: the loss's total and each layer's (kernel, bias) totals, per episode.
@@ -151,7 +151,7 @@ def _step_signals(policy_params: Params, network: policies.PolicyNetwork,
     def forward(offsets: list[Array]) -> tuple[Array, list[Array]]:
         """The log-probability of each action taken, and each layer's inputs."""
         logits, inputs = policies.forward_layers(policy_params, obs, network.activation, offsets)
-        return losses.log_prob(logits, action), inputs
+        return losses.log_prob(logits, action, fastmath.log_sigmoid), inputs
 
     layers = policy_params["params"]
     offsets = [jnp.zeros((layers[f"Dense_{i}"]["bias"].shape[0], *weights.shape), weights.dtype)

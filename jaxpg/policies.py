@@ -8,7 +8,7 @@ another discrete environment, a mean and a log standard deviation on a continuou
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Self
 
 import flax.linen as nn
@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxpg import distributions, runwise, sums
+from jaxpg import distributions, fastmath, runwise, sums
 from jaxpg.types import Action, Observation, Params, PRNGKey
 from jaxpg.validation import check_choice
 
@@ -34,6 +34,13 @@ ACTIVATIONS = {
     "swish": nn.swish,
     "softplus": nn.softplus,
 }
+
+# `forward`'s activations, whose arrays lie alike for a run alone and in a block: the built-in
+# network's rollouts, evaluation and hand-derived gradient. A module's (`PolicyNetwork`'s own
+# `apply`, differentiated by `runwise`) keep `jax.nn`'s: alone, `runwise` lays its arrays out
+# otherwise than in a block, and LLVM contracts a polynomial's multiply-adds otherwise.
+_FORWARD_ACTIVATIONS: dict[str, Callable[[jax.Array], jax.Array]] = {
+    **ACTIVATIONS, "elu": fastmath.elu}
 
 
 def basic_policy(obs: Observation, u: jax.Array | None = None) -> Action:
@@ -70,7 +77,7 @@ class PolicyNetwork(nn.Module):
 
     Weights start Glorot-uniform and biases at zero, as Keras's Dense does. Its own `apply` is
     flax's dense layers, which the trainer differentiates as any module's (`jaxpg.runwise`);
-    `forward` computes the same logits from the parameters for the fast path and evaluation,
+    `forward` computes the same logits, to rounding, for the fast path, rollouts and evaluation,
     also for many runs' parameters at once.
 
     Attributes:
@@ -157,7 +164,7 @@ def forward_layers(policy_params: Params, obs: Observation, activation: str,
     inputs = []
     for i in range(len(layers)):
         if i:
-            features = ACTIVATIONS[activation](features)
+            features = _FORWARD_ACTIVATIONS[activation](features)
         inputs.append(features)
         layer = layers[f"Dense_{i}"]
         features = dense(features, layer["kernel"], layer["bias"])
