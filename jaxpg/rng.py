@@ -159,5 +159,18 @@ def split(key: PRNGKey, num: int = 2) -> jax.Array:
     """
     words = _key_words(key)
     x0, x1 = _threefry2x32(words, *_counters((num,), words.shape[1:]))
-    # Kept whole: otherwise XLA recomputes the hash inside every draw that uses one of the keys.
-    return lax.optimization_barrier(jnp.stack([x0, x1], axis=-1))
+    # Computed once: otherwise XLA recomputes the hash inside every draw that uses one of the keys.
+    return computed_once(jnp.stack([x0, x1], axis=-1))
+
+
+def computed_once(words: jax.Array) -> jax.Array:
+    """`words` (uint32), computed into memory once rather than inside each of their consumers.
+
+    XLA fuses an elementwise producer into every consumer, and into a consumer that reads each of
+    its elements many times (a word unpacked into 32 random actions) it copies the producer, the
+    whole hash, for each read. A reduction is never fused into its consumers: `words` pass through
+    one, an exclusive-or with zeros. (XLA's CPU pipeline removes `lax.optimization_barrier` before
+    it fuses.)
+    """
+    return lax.reduce(jnp.stack([words, jnp.zeros_like(words)]), np.uint32(0), lax.bitwise_xor,
+                      (0,))
