@@ -1,11 +1,11 @@
 """Float32 activations by vectorisable arithmetic, where XLA's CPU versions compute much more.
 
 XLA's float32 `expm1` computes both `exp` and `tanh` for every element, and `log_sigmoid` (a
-`logaddexp`) an `exp`, a `log1p` and their selects: the book network's `elu` and its loss's
-`log_sigmoid` were the heaviest kernels of its training step (docs/performance.md). Here `elu`
-takes about half of XLA's time and `log_sigmoid` a quarter. Each keeps JAX's derivative, computed
-from its value, and any other float dtype takes `jax.nn`'s own. `policies.forward` and the
-hand-derived gradient use them, where a run's arrays lie alike alone and in a block (`policies`).
+`logaddexp`) an `exp`, a `log1p` and their selects; here `elu` is a range reduction and one
+polynomial, `log_sigmoid` an `exp` and one polynomial (measurements in docs/performance.md). Each
+keeps JAX's derivative, computed from its value, and any other float dtype takes `jax.nn`'s own.
+`policies.forward` and the hand-derived gradient use them, where a run's arrays lie alike alone
+and in a block (`policies`).
 """
 
 import math

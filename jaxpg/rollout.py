@@ -376,7 +376,8 @@ def random_policy(obs: Observation, key: PRNGKey, env_params: Any = cartpole.V1)
         raise ValueError(f"env_params: random_policy draws at most 2**16 actions that are not a "
                          f"power of two, got {n}")
     num = math.prod(shape)
-    words = rng.computed_once(rng.bits(key, (-(-num // per_word), 1)))  # 5x faster
+    # Hashed once, not once per action that a word holds (`rng.computed_once`).
+    words = rng.computed_once(rng.bits(key, (-(-num // per_word), 1)))
     fields = (words >> (jnp.arange(per_word, dtype=jnp.uint32) * width)) & ((1 << width) - 1)
     # (f * n) >> width is f itself for n = 2**width (CartPole's bits), and 0 for n = 1.
     actions = (fields * np.uint32(n)) >> width
