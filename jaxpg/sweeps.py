@@ -19,6 +19,7 @@ from jax.experimental import multihost_utils
 
 from jaxpg import (
     budget,
+    envs,
     iteration,
     programs,
     progress,
@@ -175,9 +176,10 @@ def setting_hyperparams(
     """
     hyper = {name: setting[name] for name in train_config.HYPERPARAMETERS}
     train_config.check_hyperparams(**hyper)
-    env = config.env_params.replace(
-        **{name: value for name, value in setting.items() if name in config.physics})
-    config.env_module.check_params(env)
+    env_params, physics = config.env_params, config.physics
+    env = env_params.replace(
+        **{name: value for name, value in setting.items() if name in physics})
+    envs.module_of(env_params).check_params(env)
     return train_config.Hyperparams(**hyper, env=env)
 
 
@@ -439,8 +441,8 @@ def run_inputs(
       R = G * S and run g * S + s is seed s under setting g.
     """
     keys = np.tile(np.asarray(reinforce.run_keys(seeds)), (len(settings), 1))
-    hypers = [setting_hyperparams(config, setting) for setting in settings for _ in seeds]
-    return keys, train_config.stack(hypers)
+    hypers = train_config.stack([setting_hyperparams(config, setting) for setting in settings])
+    return keys, jax.tree.map(lambda leaf: np.repeat(leaf, seeds.size), hypers)
 
 
 def _take(tree: Any, index: Any) -> Any:

@@ -116,9 +116,10 @@ class TrainConfig:
                              f"{env_params.torque_noise_max}")
         object.__setattr__(self, "randomize", check_ranges(self.randomize, env_params))
 
-    @property
+    @functools.cached_property
     def env_params(self) -> Any:
-        """The environment's params: a preset's, or `env` checked (`envs.resolve`)."""
+        """The environment's params: a preset's, or `env` checked (`envs.resolve`), resolved
+        once per config."""
         return envs.resolve(self.env)
 
     @property
