@@ -32,6 +32,7 @@ process), the plain trainer too. Also:
 import argparse
 import json
 import os
+import pathlib
 import statistics
 import subprocess
 import sys
@@ -54,6 +55,7 @@ ROWS = {
     "book": dict(),
     "plain-book": dict(hidden=(5,), activation="elu", plain=True),
 }
+ROOT = pathlib.Path(__file__).resolve().parent.parent  # this checkout
 PEERS = {"mlp-2x64": "plain-2x64", "book": "plain-book"}  # the plain row of each (else `plain`)
 
 
@@ -105,8 +107,9 @@ def book_seconds(tree, seeds):
     env = {name: value for name, value in os.environ.items() if name != "XLA_FLAGS"}
     if tree is not None:
         env["PYTHONPATH"] = tree
+    # Started in the tree whose jaxpg it times: `python -c` imports from its directory first.
     child = subprocess.run([sys.executable, "-c", BOOK, str(seeds)], capture_output=True,
-                           text=True, check=True, env=env)
+                           text=True, check=True, env=env, cwd=tree or ROOT)
     return json.loads(child.stdout.splitlines()[-1])
 
 
@@ -141,7 +144,7 @@ STORES = ("kept", "jax-cache")  # `keep_programs`, or JAX's persistent compilati
 def start_up(iterations, rounds):
     """Processes training one MLP seed, for each store: a first that fills it, then `rounds`
     that find their programs there, the stores alternating."""
-    here = str(__import__("pathlib").Path(__file__).parent)
+    here = str(pathlib.Path(__file__).parent)
 
     def process(directory, store):
         return json.loads(subprocess.run(
