@@ -212,18 +212,30 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     records = records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps, :, :num_episodes]
     k = records.shape[1] - 3
     action, alive = records[:, k], records[:, k + 2] != 0
-    if module is cartpole:
-        # Rewards and alive steps summed in one reduction, exactly: they are whole numbers.
-        # As integers: XLA hands a float sum to a library call, which splits the fused iteration.
-        returns, alive_steps = records[:, k + 1:].astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
+    if module is cartpole:  # rewards and alive steps: whole numbers, summed exactly
+        returns, alive_steps = _over_time(records[:, k + 1:])
         returns = returns.astype(records.dtype)
     else:  # any rewards, summed in a fixed order, a run alike alone and beside others
-        returns = sums.invariant_sum(records[:, k + 1], 0)
-        alive_steps = alive.astype(jnp.int32).sum(axis=0, dtype=jnp.int32)
+        returns, alive_steps = sums.invariant_sum(records[:, k + 1], 0), _over_time(alive)
     outside = ((action < 0) | (action > module.NUM_ACTIONS - 1) if discrete
                else ~jnp.isfinite(action))
     invalid = jnp.any(alive & outside, axis=(0, 1))
     return Episodes(_transitions(records, discrete), returns, alive_steps, invalid)
+
+
+def _over_time(values: jax.Array) -> jax.Array:
+    """`values` `[T, ...]` summed over time, one step after another, as int32 (for whole numbers).
+
+    A loop, which XLA compiles whole, rather than its reduction over the leading axis: as a
+    float sum XLA hands that to a library call, which splits the training program's loop, and
+    as an integer sum it runs slower than the loop (docs/performance.md).
+    """
+    def add(total: jax.Array, row: jax.Array) -> tuple[jax.Array, None]:
+        """`total` with the next step's `row` added."""
+        return total + row.astype(total.dtype), None
+
+    total, _ = jax.lax.scan(add, jnp.zeros(values.shape[1:], jnp.int32), values)
+    return total
 
 
 def check_actions(action: Action, obs: Observation, discrete: bool = True) -> None:
