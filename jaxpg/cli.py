@@ -381,6 +381,7 @@ def cmd_train(args: argparse.Namespace) -> None:
     # Held until the results are in place: a second run is refused.
     out = atomic_files.claim(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
+    plots.load_in_background()
     start = time.perf_counter()
     result = train(config, seed=args.seed, show_progress=not args.quiet)
     seconds = time.perf_counter() - start
@@ -494,7 +495,7 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     writes_results = _join_processes(args)  # first: it must come before JAX computes anything
     import numpy as np
 
-    from jaxpg import atomic_files, checkpoint
+    from jaxpg import atomic_files, checkpoint, plots
     from jaxpg.sweeps import check_arguments, sweep
     from jaxpg.validation import check_int
 
@@ -509,6 +510,8 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     from jaxpg import report, results
     out = (atomic_files.claim if writes_results else atomic_files.check_out_dir)(args.out)
     _enable_compilation_cache(args.no_cache, whole_programs=True)
+    if writes_results:
+        plots.load_in_background()
     start = time.perf_counter()
     swept = sweep(config, seeds=range(args.seeds), grid=grid, show_progress=not args.quiet,
                   memory_budget=args.memory_budget, eval_episodes=args.eval_episodes,

@@ -8,6 +8,7 @@ no display is touched. Each file is replaced atomically; its format follows the 
 
 import pathlib
 import textwrap
+import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, cast
 
@@ -49,6 +50,22 @@ _LABEL_GAP = 0.1  # inches, at least between two column labels side by side
 _FIT_STEPS = 3  # resizings of a figure until the layout gives the grid its size (within 0.01")
 _SIGNIFICANT = 3  # digits written of a return heatmap's largest value
 _PROBABILITY_DECIMALS = 2
+
+
+def load_in_background() -> None:
+    """Starts importing matplotlib on a thread of its own, for a command that draws once it has
+    trained: the import (about half a second) then runs beside the training rather than after it.
+
+    A figure's function imports matplotlib itself, and waits for this import where it is still
+    running.
+    """
+    threading.Thread(target=_import_matplotlib, name="matplotlib-import", daemon=True).start()
+
+
+def _import_matplotlib() -> None:
+    """Imports what `_figure` uses."""
+    from matplotlib import figure  # noqa: F401
+    from matplotlib.backends import backend_agg  # noqa: F401
 
 
 def _figure(figsize: tuple[float, float]) -> "Figure":
