@@ -116,10 +116,9 @@ class TrainConfig:
                              f"{env_params.torque_noise_max}")
         object.__setattr__(self, "randomize", check_ranges(self.randomize, env_params))
 
-    @functools.cached_property
+    @property
     def env_params(self) -> Any:
-        """The environment's params: a preset's, or `env` checked (`envs.resolve`), resolved
-        once per config."""
+        """The environment's params: a preset's, or `env` checked (`envs.resolve`)."""
         return envs.resolve(self.env)
 
     @property

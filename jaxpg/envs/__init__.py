@@ -18,6 +18,7 @@ its interface, joins them through `from_gymnax` (`jaxpg.envs.gymnax_style`).
 """
 
 import dataclasses
+import functools
 from types import ModuleType
 from typing import Any
 
@@ -80,9 +81,15 @@ def resolve(env: Any) -> Any:
     if isinstance(env, str):
         if env not in MODULES:
             raise ValueError(f"env: unknown {env!r}; allowed: {', '.join(MODULES)}")
-        return MODULES[env].make_params(env)
+        return _preset(env)
     module_of(env).check_params(env)
     return env
+
+
+@functools.cache
+def _preset(name: str) -> Any:
+    """The params of the preset `name`, made and checked once (params are immutable)."""
+    return MODULES[name].make_params(name)
 
 
 def physics(module: Any) -> tuple[str, ...]:
