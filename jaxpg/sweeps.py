@@ -19,7 +19,6 @@ from jax.experimental import multihost_utils
 
 from jaxpg import (
     budget,
-    envs,
     iteration,
     programs,
     progress,
@@ -176,10 +175,9 @@ def setting_hyperparams(
     """
     hyper = {name: setting[name] for name in train_config.HYPERPARAMETERS}
     train_config.check_hyperparams(**hyper)
-    env_params, physics = config.env_params, config.physics
-    env = env_params.replace(
-        **{name: value for name, value in setting.items() if name in physics})
-    envs.module_of(env_params).check_params(env)
+    env = config.env_params.replace(
+        **{name: value for name, value in setting.items() if name in config.physics})
+    config.env_module.check_params(env)
     return train_config.Hyperparams(**hyper, env=env)
 
 
