@@ -77,11 +77,12 @@ def needed_bytes(config: TrainConfig, runs: int = 1) -> int:
     """
     itemsize = _itemsize()
     cores = schedule.usable_cores()
-    alone = runs <= schedule.ALONE_PER_CORE * cores
+    # The blocks as a CPU trains them, one per core at a time, each padded to `size` runs.
+    blocks, size = schedule.cpu_block_count(runs)
+    alone = size == 1
     # A run alone plays whole vectors of episodes (`rollout.LANES`); a block, its runs side by side.
-    episodes = -(-config.episodes // rollout.LANES) * rollout.LANES if alone else config.episodes
-    at_once = min(runs, cores if alone else cores * schedule.CPU_BLOCK)
-    blocks = runs if alone else -(-runs // schedule.CPU_BLOCK)
+    episodes = rollout.played_episodes(config.episodes, rollout.LANES if alone else 1)
+    at_once = min(blocks, cores) * size
     networks = [config.network, losses.critic(config.loss)]
     units = sum(sum(net.hidden) for net in networks if isinstance(net, policies.PolicyNetwork))
     obs_size = config.env_module.OBS_SIZE

@@ -594,8 +594,8 @@ def robustness(
       ValueError: one line naming the argument, for policies of other shapes than `network`'s, a
         bad `env_grid` (`physics_settings`), an argument out of range, episodes that need more
         memory than the machine's (a chunk's `budget.evaluation_bytes` for a block of runs, and
-        every return kept twice in float64), or a policy that plays an action
-        other than 0 or 1.
+        every return kept twice in float64), or a policy that plays an action the
+        environment does not have.
     """
     check_int("episodes", episodes)
     check_int("max_steps", max_steps)

@@ -192,7 +192,7 @@ def optimizer_step(config: TrainConfig, grads: Array, opt_state: optax.OptState,
 
 def iterate(config: TrainConfig, train_state: TrainState,
             hyperparams: Hyperparams) -> tuple[TrainState, Metrics]:
-    """One iteration of R runs at once: play, discount, take one optimizer step on the loss.
+    """One iteration of R runs at once: play, discount, take `config.updates` optimizer steps.
 
     Args:
       config: the `TrainConfig`.
@@ -205,14 +205,15 @@ def iterate(config: TrainConfig, train_state: TrainState,
     key, key_rollout = rng.split(train_state.key)
     alone = is_run_alone(train_state)
     params = _without_run_axis(train_state.params) if alone else train_state.params
-    env_params = _physics(config, hyperparams, alone)
+    env_params = _physics(hyperparams, alone)
     if config.randomize:
         key_rollout, key_physics = rng.split(key_rollout)
-        num_episodes = -(-config.episodes // rollout.LANES) * rollout.LANES if alone else (
-            config.episodes)
+        num_episodes = rollout.played_episodes(config.episodes, rollout.LANES if alone else 1)
         env_params = _randomized(config.randomize, env_params, key_physics[0] if alone
                                  else key_physics, num_episodes)
-    key_minibatches = key_rollout  # unused with one minibatch: drawn only for several
+    # With one minibatch, several epochs order that minibatch's episodes by the rollout's key:
+    # the order changes no term of the loss. Several minibatches draw a key of their own.
+    key_minibatches = key_rollout
     if config.minibatches > 1:
         key_rollout, key_minibatches = rng.split(key_rollout)
 
@@ -244,9 +245,8 @@ def iterate(config: TrainConfig, train_state: TrainState,
     return TrainState(new_params, opt_state, key), metrics
 
 
-def _physics(config: TrainConfig, hyperparams: Hyperparams, alone: bool) -> Any:
+def _physics(hyperparams: Hyperparams, alone: bool) -> Any:
     """Each run's physics: `[R]` leaves, scalars for a run alone."""
-    del config
     return _without_run_axis(hyperparams.env) if alone else hyperparams.env
 
 
@@ -289,9 +289,9 @@ def evaluate_runs(config: TrainConfig, train_state: TrainState, hyperparams: Hyp
     params = _without_run_axis(train_state.params) if alone else train_state.params
     keys = jax.vmap(lambda key: jax.random.fold_in(key, EVALUATION))(train_state.key)
     policy = cast(policies.NetworkPolicy, _policy(config, params, alone))
-    env_params = _physics(config, hyperparams, alone)
+    env_params = _physics(hyperparams, alone)
     if config.randomize and randomized:
-        drawn = -(-episodes // rollout.LANES) * rollout.LANES if alone else episodes
+        drawn = rollout.played_episodes(episodes, rollout.LANES if alone else 1)
         key_physics = jax.vmap(lambda key: jax.random.fold_in(key, EVALUATION))(keys)
         env_params = _randomized(config.randomize, env_params,
                                  key_physics[0] if alone else key_physics, drawn)

@@ -364,7 +364,7 @@ def network_policy(network: nn.Module, policy_params: Params, runs: bool = False
     """A policy module as a policy `(obs [E, K], u [E]) -> action [E]` that samples its actions.
 
     Args:
-      network: a `PolicyNetwork` or any other policy module (`logits`).
+      network: a `PolicyNetwork` or any other policy module (`distribution`).
       policy_params: its parameters. For a `PolicyNetwork` they may hold R runs' parameters on
         trailing axes (kernels `[K, N, R]`), for observations `[E, R, 4]` (computed by `forward`).
       runs: for any other module: whether the parameters carry a trailing run axis `[..., R]`

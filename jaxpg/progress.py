@@ -82,18 +82,17 @@ def bar(total: int, enabled: bool = True, stream: TextIO | None = None, label: s
 
 
 @contextlib.contextmanager
-def count(total: int, what: str, stream: TextIO | None = None) -> Iterator[Callable[[int], None]]:
+def count(total: int, what: str) -> Iterator[Callable[[int], None]]:
     """Shows how many of `total` things are done on stderr while the block runs.
 
     Args:
       total: how many things the work does, such as episodes.
       what: their name, such as "episodes".
-      stream: where to write; stderr by default.
 
     Yields:
       `on_done(done)` to call with how many are done so far; shown as "what: done/total".
     """
-    current = _Bar(total, stream or sys.stderr, "")
+    current = _Bar(total, sys.stderr, "")
     shown = [0]  # in a log, a line each time another tenth is done
 
     def on_done(done: int) -> None:

@@ -1,7 +1,8 @@
 """What training runs share on the host: their keys, starting parameters and divergence checks.
 
 One iteration plays `episodes` episodes of at most `max_steps` steps with the current policy,
-discounts the rewards and takes one optimizer step on the loss (`jaxpg.iteration`). Iterations
+discounts the rewards and takes `TrainConfig.updates` optimizer steps on the loss
+(`jaxpg.iteration`). Iterations
 of many runs together are one compiled program (`jaxpg.programs`), which the host calls for up to
 `programs.ITERATIONS_PER_CALL` iterations at a time (`jaxpg.schedule`); `jaxpg.sweeps` trains
 every run, one (`train`) or many (`sweep`), that way.

@@ -59,6 +59,11 @@ CHUNK = 20  # steps simulated between checks whether every episode has ended
 LANES = 16  # floats in a vector of AVX-512, two of AVX2
 
 
+def played_episodes(num_episodes: int, lanes: int) -> int:
+    """How many episodes `rollout(..., lanes=lanes)` plays: a multiple of `lanes`."""
+    return -(-num_episodes // lanes) * lanes
+
+
 def reset_batch(key: PRNGKey, num: int, env_params: Any, repeat_to: int | None = None
                 ) -> tuple[Observation, Any]:
     """`num` initial states of the environment of `env_params`.
@@ -150,7 +155,7 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     module = envs.module_of(env_params)
     discrete = envs.is_discrete(module)
     key_reset, key_policy = rng.split(key)
-    played = -(-num_episodes // lanes) * lanes
+    played = played_episodes(num_episodes, lanes)
     if init_state is None:
         _, init_state = reset_batch(key_reset, num_episodes, env_params, played)
     elif played > num_episodes:
@@ -187,7 +192,7 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
 
     def play_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
                    ) -> tuple[jax.Array, jax.Array]:
-        """`CHUNK` steps simulated: (carry, records `[CHUNK, 7, E, ...]`)."""
+        """`CHUNK` steps simulated: (carry, records `[CHUNK, K + 3, E, ...]`)."""
         return jax.lax.scan(one_step, carry, steps)
 
     def skip_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]

@@ -55,14 +55,19 @@ def cpu_blocks(num_runs: int) -> tuple[list[tuple[int, int]], int]:
       (`(start, stop)` of each block's runs, the size every block is padded to with copies of its
       own runs).
     """
+    num_blocks, size = cpu_block_count(num_runs)
+    bounds = [i * num_runs // num_blocks for i in range(num_blocks + 1)]
+    return list(zip(bounds[:-1], bounds[1:])), size
+
+
+def cpu_block_count(num_runs: int) -> tuple[int, int]:
+    """How many blocks `cpu_blocks` makes of `num_runs` runs, and the size each is padded to."""
     cores = usable_cores()
     if num_runs <= ALONE_PER_CORE * cores:
-        return [(run, run + 1) for run in range(num_runs)], 1
+        return num_runs, 1
     num_blocks = -(-num_runs // (CPU_BLOCK * cores)) * cores
-    bounds = [i * num_runs // num_blocks for i in range(num_blocks + 1)]
     largest = -(-num_runs // num_blocks)
-    size = max(4, 1 << (largest - 1).bit_length())
-    return list(zip(bounds[:-1], bounds[1:])), size
+    return num_blocks, max(4, 1 << (largest - 1).bit_length())
 
 
 def train_blocks(

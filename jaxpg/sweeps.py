@@ -311,7 +311,8 @@ def sweep(
       seeds: a sequence (a range, list or array) of S distinct integers in [0, 2**32).
       grid: optional: a dict of `grid_fields(config)` (hyperparameters and physics) to values,
         whose product the settings are, or a list of settings (`expand_grid`).
-      show_progress: print a line per iteration (per chunk, when there are several).
+      show_progress: show each run's progress (per chunk, when there are several): one line
+        rewritten in place on a terminal, about ten lines a run in a log (`jaxpg.progress`).
       memory_budget: optional bytes of memory one device may use for a chunk of runs (see
         `fitting_chunk_size`); None trains all runs in one chunk. A budget above the machine's
         memory is a ValueError, as is one below what one run needs (raised after compiling one

@@ -262,7 +262,7 @@ def check_ranges(randomize: Any, env_params: Any) -> Ranges:
 
 
 # Optimizers that update each parameter from its own history alone: the fast path steps a run's
-# parameters as the one vector it keeps them in. `tests/test_reinforce.py` checks every name here
+# parameters as the one vector it keeps them in. `tests/test_iteration.py` checks every name here
 # against the per-array update.
 ELEMENTWISE_OPTIMIZERS = frozenset({
     "adabelief", "adadelta", "adagrad", "adam", "adamax", "adamaxw", "adamw", "adan", "amsgrad",

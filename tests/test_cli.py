@@ -55,11 +55,14 @@ def test_a_second_train_loads_the_programs_the_first_kept(tmp_path):
     them."""
     env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
     args = [a for a in SMALL if a != "--no-cache"]
+    store = tmp_path / "cache/jaxpg/programs"
+    files = []
     for name in ("first", "second"):
         subprocess.run([sys.executable, "-m", "jaxpg.cli", "train", *args, "--out",
                         str(tmp_path / name)], env=env, check=True, capture_output=True)
-    kept = sorted(p.name.split("-")[0] for p in (tmp_path / "cache/jaxpg/programs").iterdir())
-    assert kept == ["init", "iterate_alone"]  # a run alone's iteration
+        files.append({p.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in store.iterdir()})
+    assert sorted(n.split("-")[0] for n in files[0]) == ["init", "iterate_alone"]  # a run alone's
+    assert files[1] == files[0]  # loaded, neither compiled nor written again
     first, second = (json.loads((tmp_path / n / "metrics.json").read_text())["metrics"]
                      for n in ("first", "second"))
     assert first == second
@@ -158,7 +161,9 @@ def test_failed_run_keeps_earlier_results(tmp_path, monkeypatch):
 def test_evaluate_basic_policy_prints_statistics(capsys):
     assert cli.run_command(["evaluate", "--episodes", "20", "--max-steps", "50"]) == 0
     out = capsys.readouterr().out
-    assert "mean" in out and "std" in out and "min" in out and "max" in out
+    expected = evaluate(policies.basic_policy, episodes=20, max_steps=50)
+    assert (f"mean {expected.mean:.3f}  std {expected.std:.3f}  min {expected.min:g}  "
+            f"max {expected.max:g}") in out
 
 
 def test_render_writes_a_gif(tmp_path):

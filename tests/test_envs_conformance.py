@@ -232,10 +232,11 @@ def test_torque_noise_adds_a_uniform_torque():
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_a_sweep_vmaps_over_physics(name):
-    # Three settings of one field in one vmapped step equal three steps, one per setting.
+    # Three settings of gravity, which every step reads, in one vmapped step equal three steps,
+    # one per setting; and the settings step the same states apart.
     case = CASES[name]
     env_params = case.variants["preset"]
-    field = dataclasses.fields(env_params)[0].name
+    field = "gravity"
     settings = [getattr(env_params, field) * scale for scale in (0.8, 1.0, 1.25)]
     values, times, actions = parity.draw(case, env_params, np.random.default_rng(1), 3)
     together = parity.step_jaxpg(case, env_params.replace(**{field: np.array(settings)}), values,
@@ -245,6 +246,11 @@ def test_a_sweep_vmaps_over_physics(name):
                                   times[i:i + 1], actions[i:i + 1])
         chex.assert_trees_all_close(tuple(leaf[i] for leaf in together),
                                     tuple(leaf[0] for leaf in alone), rtol=1e-6, atol=1e-7)
+    one_state = parity.step_jaxpg(case, env_params.replace(**{field: np.array(settings)}),
+                                  values[:1].repeat(3, 0), times[:1].repeat(3, 0),
+                                  actions[:1].repeat(3, 0))
+    moved = one_state[0]  # the states after the step
+    assert len({row.tobytes() for row in moved}) == 3, moved  # each setting steps otherwise
 
 
 def test_every_module_has_the_interface():

@@ -1,6 +1,7 @@
 """Training on every environment of `jaxpg.envs`: alone as in a sweep, grids and randomisation
 over the environment's own fields, action distributions, checkpoints and the command line."""
 
+import dataclasses
 import math
 
 import flax.linen as nn
@@ -74,6 +75,10 @@ def test_a_grid_and_randomisation_vary_the_environments_own_fields():
     assert [s["max_torque"] for s in result.grid] == [1.0, 2.0]
     # A weaker motor gets less torque out of the same policy: the settings differ.
     assert not np.array_equal(result.metrics.mean_return[0], result.metrics.mean_return[1])
+    # The drawn masses change the episodes: the same sweep without them trains otherwise.
+    fixed = sweep(dataclasses.replace(config, randomize=()), seeds=[0],
+                  grid={"max_torque": [1.0, 2.0]}, show_progress=False)
+    assert not np.array_equal(result.metrics.mean_return, fixed.metrics.mean_return)
 
 
 @pytest.mark.parametrize("make, message", [

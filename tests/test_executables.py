@@ -164,9 +164,12 @@ def test_python_numbers_among_the_arguments_call_the_jitted_function():
     program, args = programs.compiled_program(CONFIG), _inputs([10])
     schedule.train_blocks(program, CONFIG.iterations, [args])  # its programs are prepared
     state = program.init(*args)
+    state_copy = jax.tree.map(np.array, state)  # the call donates its state
     _, metrics = program.iterate(state, args[1], 2)
     fields = len(iteration.Metrics._fields) - 1 + len(program.extra)  # `extra` holds the loss's
     assert np.asarray(metrics).shape[:2] == (programs.ITERATIONS_PER_CALL, fields)
+    _, typed = program.iterate(jax.device_put(state_copy), args[1], np.int32(2))
+    np.testing.assert_array_equal(np.asarray(metrics)[:2], np.asarray(typed)[:2])  # as np.int32(2)
 
 
 class _Planted:

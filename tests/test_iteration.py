@@ -1,5 +1,6 @@
 """One iteration: the fast path's optimizer step as optax defines it; any policy, loss and
-optimizer, checked before compiling, trained bit for bit alike alone and in a sweep."""
+optimizer, checked before compiling, trained alike alone and in a sweep (parameters bit for bit,
+reported losses to a few units in the last place)."""
 
 import dataclasses
 

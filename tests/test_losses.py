@@ -81,8 +81,9 @@ def test_ppo_clips_the_ratio_against_the_behaviour_policy_and_fits_gae_targets()
     batch, logit, alive = _batch()
     ppo = losses.PPO(critic=_Constant(), clip=0.2, gae_lambda=1.0, value_coef=0.5)
     params = {"policy": jnp.float32(1.0), "critic": {"params": {"value": jnp.float32(1.25)}}}
-    # Behaviour: the same policy scaled by 1.1 (the ratio moves off 1); old values 1.25 too.
-    old = _log_prob(logit * 1.1, np.asarray(batch.action))
+    # Behaviour: the same policy scaled by 2 (the ratio moves off 1, some of it beyond the clip);
+    # old values 1.25 too.
+    old = _log_prob(logit * 2.0, np.asarray(batch.action))
     played = batch._replace(log_prob=jnp.asarray(old, jnp.float32),
                             values=jnp.where(batch.alive, 1.25, 0.0))
     loss, metrics = ppo(params, _apply, played, HYPER)
@@ -91,10 +92,13 @@ def test_ppo_clips_the_ratio_against_the_behaviour_policy_and_fits_gae_targets()
     normalised = (advantages - 0.1) / 0.3
     ratio = np.exp(_log_prob(logit, np.asarray(batch.action)) - old)
     surrogate = np.minimum(ratio * normalised, np.clip(ratio, 0.8, 1.2) * normalised)
+    clipped = np.abs(ratio - 1)[alive] > 0.2
+    assert 0 < clipped.mean() < 1  # the test covers clipped and unclipped steps
+    assert not np.allclose(surrogate[alive], (ratio * normalised)[alive])  # clipping changes it
     # The critic's 1.25 against targets A + V_old = G: the baseline's 0.05.
     np.testing.assert_allclose(metrics["value_loss"], 0.05, rtol=1e-6)
     np.testing.assert_allclose(loss, -surrogate[alive].mean() + 0.5 * 0.05, rtol=1e-5)
-    np.testing.assert_allclose(metrics["clip_fraction"], np.mean(np.abs(ratio - 1)[alive] > 0.2))
+    np.testing.assert_allclose(metrics["clip_fraction"], clipped.mean())
     np.testing.assert_allclose(metrics["approx_kl"],
                                np.mean((ratio - 1 - np.log(ratio))[alive]), rtol=1e-4)
 

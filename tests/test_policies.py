@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.stats
 
 from jaxpg import basic_policy, distributions, losses, policies, runwise
 
@@ -21,8 +22,12 @@ def test_network_shapes_and_keras_initialisation():
     assert params["Dense_0"]["kernel"].shape == (4, 5)
     assert params["Dense_1"]["kernel"].shape == (5, 1)
     np.testing.assert_array_equal(params["Dense_0"]["bias"], 0)
-    # Glorot uniform: bound sqrt(6 / (fan_in + fan_out)) = sqrt(6 / 9) for the first layer.
-    assert np.abs(params["Dense_0"]["kernel"]).max() <= np.sqrt(6 / 9)
+    # Glorot uniform: U(-b, b), b = sqrt(6 / (fan_in + fan_out)), sqrt(6 / 9) for the first layer;
+    # the kernels of 64 keys pooled.
+    kernels = [policies.init_network(key, network)["params"]["Dense_0"]["kernel"]
+               for key in jax.random.split(jax.random.PRNGKey(1), 64)]
+    bound = np.sqrt(6 / 9)
+    assert scipy.stats.kstest(np.ravel(kernels), "uniform", args=(-bound, 2 * bound)).pvalue > 1e-3
     assert network.apply({"params": params}, jnp.zeros((7, 3, 4))).shape == (7, 3)
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from conftest import xla_compiles
 
-from jaxpg import TrainConfig, envs, evaluate, policies, sweep, train
+from jaxpg import TrainConfig, envs, evaluate, policies, programs, sweep, train
 
 
 @pytest.mark.parametrize("value, match", [
@@ -21,6 +21,7 @@ def test_initial_states_that_the_episodes_cannot_start_from_are_refused(value, m
 
 @pytest.mark.parametrize("trainer", [train, lambda config, **kw: sweep(config, [0, 1], **kw)])
 def test_an_on_iteration_that_is_no_function_is_refused(trainer):
+    programs._program.cache_clear()  # as a new process: a program compiled before would hide it
     with xla_compiles() as compiled, pytest.raises(
             ValueError, match="^on_iteration: must be a function .* or None, got int$"):
         trainer(TrainConfig(iterations=1), on_iteration=5)

@@ -19,11 +19,13 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 @pytest.fixture(scope="module")
 def sweeps(tmp_path_factory):
-    """Two sweep folders of one config (4 seeds x 2 settings, 3 seeds x 2) and one of 1 seed."""
+    """Two sweep folders of one config (4 seeds x 2 settings, 3 seeds x 2), one of 1 seed and one
+    of 12 iterations."""
     root = tmp_path_factory.mktemp("sweeps")
     for name, args in (("a", ["--seeds", "4", "--lr", "0.01,0.02"]),
                        ("b", ["--seeds", "3", "--lr", "0.05", "--discount", "0.9,0.99"]),
-                       ("one", ["--seeds", "1"])):
+                       ("one", ["--seeds", "1"]),
+                       ("long", ["--seeds", "4", "--iterations", "12"])):
         assert cli.run_command(["sweep", *SMALL, *args, "--out", str(root / name)]) == 0
     return root
 
@@ -203,6 +205,18 @@ def test_scores_are_the_last_training_iterations_and_the_report_says_so(sweeps):
     assert matrix["probability"][1][0] == pytest.approx(
         stats.probability_of_improvement(scores[1], scores[0]))
     assert comparison["seeds_needed"]["best"] in {"lr=0.01", "lr=0.02"}
+
+
+def test_scores_are_the_means_of_the_last_ten_iterations_of_a_longer_sweep(sweeps):
+    comparison = report.compare([sweeps / "long"])
+    with np.load(sweeps / "long" / "metrics.npz") as npz:
+        curves = npz["mean_return"].astype(np.float64)
+    assert curves.shape[-1] == 12
+    scores = curves[..., -10:].mean(axis=-1)
+    assert not np.allclose(scores, curves.mean(axis=-1))  # the window is not every iteration
+    assert "last 10 iterations" in comparison["score"]
+    (setting,) = comparison["settings"]
+    assert setting["iqm"]["estimate"] == stats.iqm(scores[0])
 
 
 def test_held_out_returns_are_the_scores_where_the_sweep_has_them(sweeps, tmp_path):

@@ -191,6 +191,10 @@ def test_a_list_of_settings_trains_each():
     swept = sweep(PHYSICS_CONFIG, seeds=range(2), grid=grid, show_progress=False)
     assert [(s["length"], s["learning_rate"]) for s in swept.grid] == [(0.5, 0.01), (1.0, 0.02)]
     assert swept.summary.final_return.shape == (2, 2)
+    alone = train(dataclasses.replace(PHYSICS_CONFIG, learning_rate=0.02, env=cartpole.make_params(
+        "CartPole-v1", length=1.0)), seed=1, show_progress=False)
+    assert_trained_alike(alone, jax.tree.map(lambda leaf: leaf[1, 1], TrainResult(
+        swept.policy_params, swept.metrics)))
 
 
 @pytest.mark.parametrize("grid, match", [
@@ -205,6 +209,7 @@ def test_a_list_of_settings_trains_each():
     ([], "grid: expected"),
 ])
 def test_bad_grids_are_named_before_compiling(grid, match):
+    programs._program.cache_clear()  # as a new process: a program compiled before would hide it
     with xla_compiles() as compiled, pytest.raises(ValueError, match=match):
         sweep(PHYSICS_CONFIG, seeds=range(2), grid=grid, show_progress=False)
     assert not compiled

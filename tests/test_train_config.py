@@ -89,9 +89,12 @@ def test_the_optimizers_listed_exclude_those_that_need_more_than_the_gradient():
 # (noisy_sgd), a plain scaling (scale_by_learning_rate).
 @pytest.mark.parametrize("name", ["lamb", "sm3", "noisy_sgd", "scale_by_learning_rate"])
 def test_a_listed_optimizer_trains(name):
-    result = train(TrainConfig(iterations=1, episodes=1, max_steps=2, optimizer=name), seed=0,
-                   show_progress=False)
-    assert np.all(np.isfinite(result.metrics.loss))
+    one, two = (train(TrainConfig(iterations=n, episodes=1, max_steps=5, optimizer=name), seed=0,
+                      show_progress=False) for n in (1, 2))
+    assert np.all(np.isfinite(two.metrics.loss))
+    # The second iteration's step moved every layer's parameters.
+    for before, after in zip(*(jax.tree.leaves(r.policy_params) for r in (one, two))):
+        assert np.all(np.isfinite(after)) and not np.array_equal(before, after)
 
 
 def test_any_optax_optimizer_by_name():

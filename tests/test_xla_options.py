@@ -63,7 +63,7 @@ def _train(tmp_path, setting):
     return dict(np.load(out))
 
 
-def test_the_setting_trains_bit_for_bit_alike(tmp_path):
+def test_the_setting_trains_the_same_parameters_and_statistics(tmp_path):
     """Parameters and statistics are the same bit for bit; the gradient norm, which nothing is
     computed from, to one unit in the last place: with loops not unrolled, LLVM fuses one of its
     multiplications and additions into one rounding in one layout and not in the other."""
