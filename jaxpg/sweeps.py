@@ -126,7 +126,7 @@ def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, 
         raise ValueError(f"grid: expected None, a dict of field to values or a non-empty list of "
                          f"dicts, got {grid!r}")
     for setting in settings:
-        setting_hyperparams(config, setting)  # validates
+        _check_setting(config, setting)
     return settings
 
 
@@ -161,24 +161,29 @@ def _axes(grid: dict[str, Any]) -> dict[str, list[float]]:
 def setting_hyperparams(
     config: train_config.TrainConfig, setting: dict[str, float]
 ) -> train_config.Hyperparams:
-    """The `Hyperparams` (scalars) of one setting of `expand_grid`, validated.
+    """The `Hyperparams` (scalars) of one setting of `expand_grid`, which checked it.
 
     Args:
       config: the `TrainConfig` of every run, whose physics the setting's physical fields modify.
       setting: one setting of `expand_grid`.
 
     Returns:
-      `Hyperparams` of Python scalars, `env` the setting's `CartPoleParams`.
+      `Hyperparams` of Python scalars, `env` the setting's environment params.
+    """
+    return train_config.Hyperparams(
+        **{name: setting[name] for name in train_config.HYPERPARAMETERS},
+        env=config.env_params.replace(
+            **{name: value for name, value in setting.items() if name in config.physics}))
+
+
+def _check_setting(config: train_config.TrainConfig, setting: dict[str, float]) -> None:
+    """Checks one setting's hyperparameters and physics (`setting_hyperparams`).
 
     Raises:
       ValueError: naming the field, for a value out of range.
     """
-    hyper = {name: setting[name] for name in train_config.HYPERPARAMETERS}
-    train_config.check_hyperparams(**hyper)
-    env = config.env_params.replace(
-        **{name: value for name, value in setting.items() if name in config.physics})
-    config.env_module.check_params(env)
-    return train_config.Hyperparams(**hyper, env=env)
+    train_config.check_hyperparams(**{name: setting[name] for name in train_config.HYPERPARAMETERS})
+    config.env_module.check_params(setting_hyperparams(config, setting).env)
 
 
 # The message of a ValueError for seeds that are not a sequence of integers in range.
