@@ -76,13 +76,12 @@ def needed_bytes(config: TrainConfig, runs: int = 1) -> int:
       An int; it grows with iterations, episodes, max_steps, hidden units and runs.
     """
     itemsize = _itemsize()
-    cores = schedule.usable_cores()
     # The blocks as a CPU trains them, one per core at a time, each padded to `size` runs.
     blocks, size = schedule.cpu_block_count(runs)
     alone = size == 1
     # A run alone plays whole vectors of episodes (`rollout.LANES`); a block, its runs side by side.
     episodes = rollout.played_episodes(config.episodes, rollout.LANES if alone else 1)
-    at_once = min(blocks, cores) * size
+    at_once = schedule.runs_at_once(runs)
     networks = [config.network, losses.critic(config.loss)]
     units = sum(sum(net.hidden) for net in networks if isinstance(net, policies.PolicyNetwork))
     obs_size = config.env_module.OBS_SIZE

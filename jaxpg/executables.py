@@ -168,10 +168,13 @@ def _in_use() -> bool:
 
 @functools.cache
 def _source_digest() -> str:
-    """A digest of jaxpg's modules: a program compiled from other code is never reused."""
+    """A digest of jaxpg's modules, its subpackages' too: a program compiled from other code is
+    never reused."""
     digest = hashlib.sha256()
-    for path in sorted(pathlib.Path(__file__).parent.glob("*.py")):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
+    package = pathlib.Path(__file__).parent
+    for path in sorted(package.rglob("*.py")):
+        digest.update(path.relative_to(package).as_posix().encode() + b"\0" + path.read_bytes()
+                      + b"\0")
     return digest.hexdigest()
 
 

@@ -60,6 +60,13 @@ def cpu_blocks(num_runs: int) -> tuple[list[tuple[int, int]], int]:
     return list(zip(bounds[:-1], bounds[1:])), size
 
 
+def runs_at_once(num_runs: int) -> int:
+    """How many runs a CPU trains at once for `num_runs` runs: a block per core, each padded to
+    its size with copies of its runs (`cpu_blocks`)."""
+    num_blocks, size = cpu_block_count(num_runs)
+    return min(num_blocks, usable_cores()) * size
+
+
 def cpu_block_count(num_runs: int) -> tuple[int, int]:
     """How many blocks `cpu_blocks` makes of `num_runs` runs, and the size each is padded to."""
     cores = usable_cores()

@@ -288,7 +288,7 @@ def check_arguments(
         raise ValueError(f"seeds: {str(error).removeprefix('memory: ')}") from None
     # A block of runs per core plays at once (`schedule.train_blocks`); the returns of every
     # episode of every run are kept, sampled and greedy: two floats of 4 bytes.
-    at_once = min(runs, schedule.CPU_BLOCK * schedule.usable_cores())
+    at_once = schedule.runs_at_once(runs)
     returns = runs * eval_episodes * 8
     budget.check_fits(
         budget.evaluation_bytes(eval_episodes, config.max_steps, at_once) + returns,
@@ -316,8 +316,9 @@ def sweep(
       seeds: a sequence (a range, list or array) of S distinct integers in [0, 2**32).
       grid: optional: a dict of `grid_fields(config)` (hyperparameters and physics) to values,
         whose product the settings are, or a list of settings (`expand_grid`).
-      show_progress: show each run's progress (per chunk, when there are several): one line
-        rewritten in place on a terminal, about ten lines a run in a log (`jaxpg.progress`).
+      show_progress: show the iterations done, with the mean return of the runs (per chunk, when
+        there are several): one line rewritten in place on a terminal, about ten lines in a log
+        (`jaxpg.progress`).
       memory_budget: optional bytes of memory one device may use for a chunk of runs (see
         `fitting_chunk_size`); None trains all runs in one chunk. A budget above the machine's
         memory is a ValueError, as is one below what one run needs (raised after compiling one

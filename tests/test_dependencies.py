@@ -66,7 +66,7 @@ def test_the_smoke_installs_the_pins_and_runs_every_stable_command():
     smoke = (CI / "smoke").read_text()
     assert 'python3 "$repo/.ci/lower_bounds.py"\n' in smoke
     # Not editable: the distribution as pip builds it (every package in it).
-    assert re.search(r'pip install .*-c "\$repo/\.ci/lower-bounds\.txt" "\$repo"\n', smoke)
+    assert re.search(r'pip install .*-c "\$repo/\.ci/lower-bounds\.txt" "\$work/src"\n', smoke)
     assert 'python "$repo/.ci/lower_bounds.py" --installed\n' in smoke
     for command in ("train", "sweep", "evaluate", "conformance"):
         assert re.search(rf"^jaxpg {command} ", smoke, re.MULTILINE), command

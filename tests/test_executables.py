@@ -349,3 +349,13 @@ def test_a_relative_cache_home_is_ignored_and_nothing_is_created_in_the_working_
     kept = tmp_path / "home" / ".cache" / "jaxpg" / "programs"
     assert sorted(p.name.split("-")[0] for p in kept.iterdir()) == ["init", "iterate_alone"]
     assert (tmp_path / "home" / ".cache" / "matplotlib").is_dir()
+
+
+def test_the_source_digest_covers_the_environments_modules(monkeypatch):
+    """A kept program is found by a digest of jaxpg's code: an edit to an environment's module,
+    in a subpackage, changes it (and the program is compiled again)."""
+    read_bytes = pathlib.Path.read_bytes
+    before = executables._source_digest.__wrapped__()
+    monkeypatch.setattr(pathlib.Path, "read_bytes", lambda path: read_bytes(path) + (
+        b"# edited" if path.parent.name == "envs" and path.name == "cartpole.py" else b""))
+    assert executables._source_digest.__wrapped__() != before

@@ -62,6 +62,9 @@ def test_cpu_blocks_cover_the_runs_padded_to_one_size(num_runs, cores, monkeypat
     else:
         assert size in (4, 8, 16) and size < 2 * max(sizes) and size <= schedule.CPU_BLOCK
         assert len(blocks) % cores == 0  # every core trains
+    # What the memory estimate counts: the first block of each core, padded.
+    assert schedule.runs_at_once(num_runs) == min(len(blocks), cores) * size
+    assert schedule.cpu_block_count(num_runs) == (len(blocks), size)
 
 
 @pytest.mark.parametrize("cores", [1, 2])  # one block of 5 runs padded to 8; blocks of 2 and 3 to 4
