@@ -523,7 +523,7 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     comparison: dict[str, Any] | ValueError | None
     try:
         comparison = results.save_sweep(swept, out, seconds)
-    except ValueError as error:
+    except results.ReportRefused as error:
         comparison = error
     s = swept.summary
     held_out = {name: np.median(returns.mean(axis=-1), axis=1)
@@ -540,8 +540,9 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     if comparison is None:
         print("no comparison report: its confidence intervals need at least 2 seeds")
         return
-    if isinstance(comparison, ValueError):
-        raise comparison
+    if isinstance(comparison, ValueError):  # the runs are written: the report is what is missing
+        print(f"no comparison report: {comparison}")
+        return
     print(report.format_report(comparison))
     print(f"wrote {out}/: {', '.join((report.COMPARISON_FILE, *report.PLOT_FILES))}")
 

@@ -66,9 +66,6 @@ def resolve_env(env: Env) -> tuple[Any, str]:
         the environment's `check_params` refuses or that are arrays.
     """
     env_params = envs.resolve(env)
-    if any(np.ndim(leaf) != 0 for leaf in jax.tree.leaves(env_params)):
-        raise ValueError(f"env: every field of {type(env_params).__name__} must be a scalar here, "
-                         f"not an array")
     return env_params, env if isinstance(env, str) else envs.module_of(env_params).NAME
 
 

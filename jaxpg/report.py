@@ -303,6 +303,9 @@ def check_comparable(sweeps: Sequence[Sweep]) -> None:
 # Bootstrap resamples per interval, at most: a comparison's time grows in proportion to them (its
 # memory does not: `stats` draws them in chunks of `stats._CHUNK_SCORES` scores).
 MAX_REPS = 100_000
+# The least resamples: a 95 % interval's ends are their 2.5 % and 97.5 % quantiles, which fewer
+# than 50 leave without one resample in a tail.
+MIN_REPS = 50
 
 
 def compare(sweeps: Sequence[Source], confidence: float = 0.95, reps: int = 2000,
@@ -313,7 +316,7 @@ def compare(sweeps: Sequence[Source], confidence: float = 0.95, reps: int = 2000
       sweeps: `SweepResult`s and folders written by `jaxpg sweep --out` (or `save_sweep`), in
         any mix; their configs may differ (`check_comparable`).
       confidence: the coverage of every interval, in (0, 1).
-      reps: bootstrap resamples per interval, in [1, `MAX_REPS`].
+      reps: bootstrap resamples per interval, in [`MIN_REPS`, `MAX_REPS`].
       seed: seeds every bootstrap, so the report is reproducible.
 
     Returns:
@@ -330,7 +333,7 @@ def compare(sweeps: Sequence[Source], confidence: float = 0.95, reps: int = 2000
         setting of fewer than 2 runs, a `reps` out of range, or an interval argument that `stats`
         refuses.
     """
-    reps = check_int("reps", reps, 1, MAX_REPS + 1)  # before any folder is read
+    reps = check_int("reps", reps, MIN_REPS, MAX_REPS + 1)  # before any folder is read
     loaded = _load(sweeps)
     check_comparable(loaded)
     units = _units(loaded)

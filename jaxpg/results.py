@@ -34,6 +34,10 @@ def held_out(result: SweepResult) -> dict[str, np.ndarray]:
             "eval_greedy_returns": result.eval_greedy_returns}
 
 
+class ReportRefused(ValueError):
+    """A sweep's folder was written, but `report.compare` refused its scores (a diverged run's)."""
+
+
 def save_sweep(result: SweepResult, out: str | os.PathLike[str],
                seconds: float | None = None) -> dict[str, Any] | None:
     """Writes a sweep's folder, as `jaxpg sweep --out` does, replacing `out` whole in one step.
@@ -48,8 +52,9 @@ def save_sweep(result: SweepResult, out: str | os.PathLike[str],
 
     Raises:
       ValueError: for a result without its config or an `out` that cannot hold results, before
-        anything is written; for a comparison that `report.compare` refuses (a diverged run's
-        scores), after the folder is in place without the report.
+        anything is written.
+      ReportRefused: a ValueError, for a comparison that `report.compare` refuses (a diverged
+        run's scores), after the folder is in place without the report.
     """
     if result.config is None:
         raise ValueError("result: a SweepResult without its config; give what jaxpg.sweep returns")
@@ -65,7 +70,7 @@ def save_sweep(result: SweepResult, out: str | os.PathLike[str],
             except ValueError as error:
                 comparison = error
     if isinstance(comparison, ValueError):
-        raise comparison
+        raise ReportRefused(str(comparison))
     return comparison
 
 

@@ -8,6 +8,7 @@ chunks when a memory budget asks for it.
 
 import dataclasses
 import itertools
+import math
 from collections.abc import Callable, Collection, Sequence
 from typing import Any, NamedTuple, cast
 
@@ -87,6 +88,9 @@ class SweepResult(NamedTuple):
     config: train_config.TrainConfig | None = None  # every run's (the grid's values aside)
 
 
+MAX_SETTINGS = 2**20  # a grid's settings at most: far beyond what memory trains at once
+
+
 def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, float]]:
     """The grid's settings, each with the hyperparameters and the physical fields the grid names.
 
@@ -108,6 +112,10 @@ def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, 
     if grid is None or isinstance(grid, dict):
         _check_fields(dict(grid or {}), config)
         axes = _axes(dict(grid or {}))
+        count = math.prod(len(values) for values in axes.values())
+        if count > MAX_SETTINGS:
+            raise ValueError(f"grid: {count} settings (the product of its values); at most "
+                             f"{MAX_SETTINGS}")
         names = [*train_config.HYPERPARAMETERS, *(n for n in axes if n in config.physics)]
         values: list[list[Any]] = [axes.get(name, [getattr(config, name, None)]) for name in names]
         settings = [dict(zip(names, combo)) for combo in itertools.product(*values)]
@@ -120,8 +128,10 @@ def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, 
                      **{name: check_number(name, value)
                         for name, value in setting.items()}}
                     for setting in grid]
-        if len({tuple(sorted(s.items())) for s in settings}) != len(settings):
-            raise ValueError("grid: the list repeats a setting")
+        if len({tuple(sorted(zip(s, _as_trained(list(s.values())))))
+                for s in settings}) != len(settings):
+            raise ValueError("grid: the list repeats a setting (in the float training computes "
+                             "in)")
     else:
         raise ValueError(f"grid: expected None, a dict of field to values or a non-empty list of "
                          f"dicts, got {grid!r}")
@@ -152,10 +162,16 @@ def _axes(grid: dict[str, Any]) -> dict[str, list[float]]:
                    for value in np.atleast_1d(np.asarray(values)).tolist()]
         if not options:
             raise ValueError(f"{name}: the grid needs at least one value")
-        if len(set(options)) != len(options):
-            raise ValueError(f"{name}: the grid repeats a value: {options}")
+        if len(set(_as_trained(options))) != len(options):
+            raise ValueError(f"{name}: the grid repeats a value (in the float training computes "
+                             f"in): {options}")
         axes[name] = options
     return axes
+
+
+def _as_trained(values: list[float]) -> list[float]:
+    """`values` as training computes with them: rounded to JAX's default float."""
+    return np.asarray(values, jax.dtypes.canonicalize_dtype(float)).tolist()
 
 
 def setting_hyperparams(

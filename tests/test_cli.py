@@ -449,6 +449,17 @@ def test_divergence_is_reported_with_its_first_iteration(tmp_path):
     assert [row[column] for row in rows[1:]] == ["1", "-1"]  # seed 1's stayed finite
 
 
+def test_a_sweep_whose_scores_the_report_refuses_keeps_its_runs_and_succeeds(tmp_path, capsys):
+    """Every run diverges: the runs are written, and the report is missing, in one line."""
+    args = ["--env", "MountainCarContinuous-v0", "--seeds", "2", "--lr", "100", "--iterations",
+            "30", "--episodes", "4", "--max-steps", "100", "--quiet", "--no-cache"]
+    with pytest.warns(RuntimeWarning, match="diverged"):
+        assert cli.run_command(["sweep", *args, "--out", str(tmp_path / "sweep")]) == 0
+    assert "no comparison report: " in capsys.readouterr().out
+    assert {p.name for p in (tmp_path / "sweep").iterdir()} == {
+        "metrics.npz", "runs.csv", "summary.json", "sweep.png", "policies.msgpack"}
+
+
 def test_the_command_warns_in_one_line_and_once_of_an_unreadable_compilation_cache(capsys):
     """JAX warns of every entry of a damaged cache (21 for `reproduce`, two lines each)."""
     with warnings.catch_warnings():

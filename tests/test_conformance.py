@@ -138,6 +138,8 @@ def test_command_runs_cartpole_by_default(capsys):
     (["--states", "5"], "states: "),
     (["--env", "Acrobot-v1", "--states", "0"], "states: "),
     (["--env", "Acrobot-v1", "--seed", "-1"], "seed: "),
+    (["--env", "Pendulum-v1", "--states", str(10**12)], "states: must be an integer in"),
+    (["--episodes", str(10**12)], "episodes: must be an integer in"),
 ])
 def test_command_refuses_bad_arguments_in_one_line(capsys, argv, match):
     status, out, err = run_cli(capsys, *argv)

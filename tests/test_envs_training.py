@@ -90,6 +90,13 @@ def test_a_grid_and_randomisation_vary_the_environments_own_fields():
      "grid: unknown field(s) length of MountainCar-v0"),
     (lambda: TrainConfig(env=envs.acrobot.V1.replace(torque_noise_max=0.1)), "torque_noise_max"),
     (lambda: TrainConfig(env=envs.pendulum.V1.replace(mass=-1.0)), "mass: must be positive"),
+    # One environment's physics are numbers: an array would train on its first entry.
+    (lambda: TrainConfig(env=envs.pendulum.V1.replace(max_torque=np.array([0.5, 2.0]))),
+     "env: every field of PendulumParams must be a number, not an array (max_torque)"),
+    (lambda: TrainConfig(env=envs.cartpole.V1.replace(length=np.array([2.0, 1.0]))),
+     "env: every field of CartPoleParams must be a number, not an array (length)"),
+    (lambda: envs.cartpole.make_params("CartPole-v1", sutton_barto_reward="no"),
+     "sutton_barto_reward: must be True or False, got 'no'"),
 ])
 def test_bad_environments_are_refused_in_one_line(make, message):
     with pytest.raises(ValueError, match="^" + message.replace("(", r"\(").replace(")", r"\)")):

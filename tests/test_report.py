@@ -291,6 +291,7 @@ def test_bad_folders_exit_2_with_one_line(sweeps, tmp_path, capsys, case, messag
 @pytest.mark.parametrize("args, word", [
     (["--confidence", "1.5"], "confidence"),
     (["--reps", "0"], "reps"),
+    (["--reps", "1"], "reps"),  # an interval of one resample: its estimate outside it
 ])
 def test_bad_options_exit_2_with_one_line(sweeps, tmp_path, capsys, args, word):
     out = tmp_path / "out"

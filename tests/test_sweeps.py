@@ -206,6 +206,13 @@ def test_a_list_of_settings_trains_each():
     ({"length": []}, "length: the grid needs at least one value"),
     ({"length": [1.0, 1.0]}, "length: the grid repeats a value"),
     ([{"length": 1.0}, {"length": 1.0}], "grid: the list repeats a setting"),
+    # Apart in float64, one number in the float32 training computes in.
+    ({"learning_rate": [0.01, 0.010000000000000002]}, "learning_rate: the grid repeats a value"),
+    ([{"length": 1.0}, {"length": 1.0 + 1e-12}], "grid: the list repeats a setting"),
+    # A billion settings: refused before any is made.
+    ({"learning_rate": list(np.linspace(0.001, 0.1, 1000)),
+      "discount": list(np.linspace(0.5, 0.999, 1000)),
+      "entropy_coef": list(np.linspace(0.0, 0.1, 1000))}, "grid: 1000000000 settings"),
     ([], "grid: expected"),
 ])
 def test_bad_grids_are_named_before_compiling(grid, match):

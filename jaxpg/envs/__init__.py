@@ -22,6 +22,8 @@ import functools
 from types import ModuleType
 from typing import Any
 
+import numpy as np
+
 from jaxpg.envs import (
     acrobot,
     cartpole,
@@ -75,7 +77,8 @@ def resolve(env: Any) -> Any:
       The params.
 
     Raises:
-      ValueError: naming `env` for an unknown name or another kind of value, or the field at
+      ValueError: naming `env` for an unknown name, another kind of value or a field that is an
+        array (one environment's physics: a sweep varies them by its grid), or the field at
         fault for invalid params (the module's `check_params`).
     """
     if isinstance(env, str):
@@ -83,6 +86,10 @@ def resolve(env: Any) -> Any:
             raise ValueError(f"env: unknown {env!r}; allowed: {', '.join(MODULES)}")
         return _preset(env)
     module_of(env).check_params(env)
+    arrays = [field.name for field in dataclasses.fields(env) if np.ndim(getattr(env, field.name))]
+    if arrays:
+        raise ValueError(f"env: every field of {type(env).__name__} must be a number, not an "
+                         f"array ({', '.join(arrays)}); a sweep's grid varies them")
     return env
 
 

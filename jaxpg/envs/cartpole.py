@@ -212,11 +212,14 @@ def check_params(env_params: CartPoleParams) -> None:
       ValueError: naming the first invalid field: a value that is not finite, a mass, length,
         force, time step or threshold at or below 0, a value or derived quantity that overflows
         or underflows as above, a `max_steps` that is not an integer in [1, 2**31),
-        reset bounds out of order, an unknown integrator, or `env_params` not a
-        `CartPoleParams`.
+        reset bounds out of order, an unknown integrator, a `sutton_barto_reward` that is not
+        True or False, or `env_params` not a `CartPoleParams`.
     """
     common.check_numbers(env_params, CartPoleParams, _POSITIVE)  # each field on its own
     check_choice("integrator", env_params.integrator, INTEGRATORS)
+    if not isinstance(env_params.sutton_barto_reward, bool | np.bool_):
+        raise ValueError(f"sutton_barto_reward: must be True or False, got "
+                         f"{env_params.sutton_barto_reward!r}")
     floats = jax.dtypes.canonicalize_dtype(float)
     for name, (operation, *operands) in _DERIVED.items():
         values = [common.concrete(getattr(env_params, operand)) for operand in operands]

@@ -53,6 +53,7 @@ from jaxpg.policies import basic_policy
 from jaxpg.validation import check_int
 
 COMPONENTS = ("x", "x_dot", "theta", "theta_dot")
+MAX_EPISODES = 2**16  # per variant, an upper bound for `compare_with_gymnasium`
 
 # jaxpg's float dtype: float32 or float64, as a dtype or its scalar type.
 FloatDType = np.dtype[Any] | type[np.floating]
@@ -406,7 +407,7 @@ def compare_with_gymnasium(
       ValueError: one line naming the argument, for `episodes` or `seed` out of range, physics
         that `cartpole.check_params` refuses, or an unknown variant or none.
     """
-    check_int("episodes", episodes)
+    check_int("episodes", episodes, 1, MAX_EPISODES)
     check_int("seed", seed, 0, 2**32)
     env_params = cartpole.V1 if env_params is None else env_params
     cartpole.check_params(env_params)

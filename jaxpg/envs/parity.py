@@ -29,6 +29,7 @@ import scipy.stats
 from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
 from jaxpg.validation import check_int
 
+MAX_STATES = 2**24  # drawn per variant at most: each variant holds them in float64
 EDGE = 0.1  # the share of values drawn at an end of their range instead of inside it
 FLOAT32_TOLERANCE = 1e-5  # the largest relative error of a float32 step, where well-conditioned
 FLOAT64_TOLERANCE = 1e-12
@@ -628,7 +629,7 @@ def check(env: str, states: int = 10_000, seed: int = 0, reset_draws: int = 4000
     """
     if env not in CASES:
         raise ValueError(f"env: allowed {', '.join(CASES)}; got {env!r}")
-    check_int("states", states)
+    check_int("states", states, 1, MAX_STATES)
     check_int("seed", seed, 0, 2**32)
     check_int("reset_draws", reset_draws, 2)
     case = CASES[env]
