@@ -136,16 +136,19 @@ def save(
 
     Raises:
       ValueError: for a `config` that is no `TrainConfig`, `metrics` that are no `Metrics`,
-        parameters of other shapes than `config`'s network's (or its loss's critic's), critic
-        parameters for a loss without a critic, or a config field that cannot be saved.
+        parameters of other shapes than `config`'s network's (or its loss's critic's) or not
+        float32 or float64 (which `load` refuses), critic parameters for a loss without a
+        critic, or a config field that cannot be saved.
     """
     if not isinstance(config, train_config.TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     if metrics is not None and not isinstance(metrics, iteration.Metrics):
         raise ValueError(f"metrics: expected a Metrics or None, got {type(metrics).__name__}")
     _check_params_match(policy_params, config, "policy_params", _grid_shape(runs))
+    _check_floats(_state_dict(policy_params), "policy_params")  # what `load` reads back
     if critic_params is not None:
         _check_params_match(critic_params, config, "critic_params", _grid_shape(runs))
+        _check_floats(_state_dict(critic_params), "critic_params")
     path = _target(path, FILENAME if runs is None else SWEEP_FILENAME)
     content = serialization.msgpack_serialize({
         "jaxpg_version": _jaxpg_version(),
@@ -446,7 +449,7 @@ def load(
             _check_floats(metrics, "metrics")
             metrics = iteration.Metrics(**{k: jax.tree.map(jnp.asarray, v)
                                            for k, v in metrics.items()})
-    except (AttributeError, KeyError, TypeError, ValueError) as e:
+    except (AttributeError, KeyError, RecursionError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: damaged jaxpg checkpoint ({type(e).__name__}: {e})") from None
     _warn_if_diverged(fields["policy_params"], lead, path)
     return Checkpoint(policy_params, config, version, metrics, grid, seeds, critic_params)
@@ -532,7 +535,8 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
     if loaded.grid is None:
         raise ValueError("run: the checkpoint holds one run, not a sweep's")
     grid_shape = (len(loaded.grid), len(cast(np.ndarray, loaded.seeds)))  # a sweep's: both set
-    if not all(0 <= i < n for i, n in zip((g, s), grid_shape)):
+    if not all(isinstance(i, int | np.integer) and not isinstance(i, bool) and 0 <= i < n
+               for i, n in zip((g, s), grid_shape)):
         raise ValueError(f"run: expected g in [0, {grid_shape[0]}) and s in "
                          f"[0, {grid_shape[1]}), got {g},{s}")
     setting = loaded.grid[g]

@@ -608,7 +608,7 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
                          "policies, settings or --out are played in jaxpg")
     if args.out is not None:
         _check_not_replaced(args.out, args.policy)
-        atomic_files.check_out_dir(args.out)
+        atomic_files.claim(args.out)  # held until the results are in place: a second is refused
     with _chunk_progress(args) as on_chunk:
         result = robustness(policies, values, episodes=args.episodes, max_steps=args.max_steps,
                             seed=args.seed, network=config.network if config else None,
@@ -898,7 +898,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--confidence", type=float, default=0.95,
                    help="interval coverage (default %(default)s)")
     p.add_argument("--reps", type=int, default=2000,
-                   help="bootstrap resamples (default %(default)s)")
+                   help="bootstrap resamples, 50 to 100000 (default %(default)s)")
     p.add_argument("--seed", type=int, default=0,
                    help="seeds the bootstrap (default %(default)s)")
     p.set_defaults(handler=cmd_compare)
@@ -908,9 +908,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", default="CartPole-v1",
                    help="the environment's Gymnasium id (default %(default)s)")
     p.add_argument("--episodes", type=int, default=None,
-                   help="CartPole: episodes per variant (default 100)")
+                   help="CartPole: episodes per variant, below 65536 (default 100)")
     p.add_argument("--states", type=int, default=None,
-                   help="the other environments: states drawn per variant (default 10000)")
+                   help="the other environments: states drawn per variant, below 2**24 "
+                        "(default 10000)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(handler=cmd_conformance)
 

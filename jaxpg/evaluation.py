@@ -396,7 +396,8 @@ def _gymnasium_returns(
 ) -> np.ndarray:
     """Returns `[episodes]` of episodes played in Gymnasium, one Python step at a time."""
     gym_env = make_gymnasium_env(env_params, env_id)
-    discrete = envs.is_discrete(envs.module_of(env_params))
+    module = envs.module_of(env_params)
+    discrete = envs.is_discrete(module)
     key = jax.random.PRNGKey(seed)
     policy = _as_argument(policy)
     returns = np.zeros(episodes)
@@ -404,6 +405,11 @@ def _gymnasium_returns(
         obs = reset_gymnasium(gym_env, seed + episode, env_params)
         for t in range(max_steps):
             chosen = np.asarray(_act(policy, obs, key, episode, t))
+            # Checked as the jaxpg backend checks its actions, before Gymnasium takes them.
+            rollout.check_actions(chosen[None], np.asarray(obs)[None], discrete)
+            if not (0 <= chosen < module.NUM_ACTIONS if discrete else np.isfinite(chosen)):
+                allowed = f"0 to {module.NUM_ACTIONS - 1}" if discrete else "a finite number"
+                raise ValueError(f"policy: returned the action {chosen}; allowed: {allowed}")
             # Gymnasium's continuous action is `[1]` float32.
             action = int(chosen) if discrete else chosen.astype(np.float32).reshape(1)
             obs, reward, terminated, truncated, _ = gym_env.step(action)
@@ -471,9 +477,17 @@ class Robustness(NamedTuple):
 
         Returns:
           (low, high) floats.
+
+        Raises:
+          ValueError: naming `setting` out of range, or an argument `stats` refuses.
         """
         from jaxpg import stats  # here: stats imports scipy, which evaluating does not need
-        return stats.bootstrap_ci(self.mean[setting], statistic, paired=True, **interval)
+        return stats.bootstrap_ci(self.mean[self._setting("setting", setting)], statistic,
+                                  paired=True, **interval)
+
+    def _setting(self, name: str, setting: Any) -> int:
+        """`setting`, checked to be a grid setting's index, g in [0, G)."""
+        return check_int(name, setting, 0, self.returns.shape[0])
 
     def improvement_ci(self, other: "Robustness", setting: int = 0, other_setting: int = 0,
                        **interval: Any) -> tuple[float, float]:
@@ -493,9 +507,14 @@ class Robustness(NamedTuple):
           (low, high) floats.
 
         Raises:
-          ValueError: naming `other`, for tables of other physics settings or seeds counts.
+          ValueError: naming `other`, for another kind of value or tables of other physics
+            settings or seeds counts; naming `setting` or `other_setting` out of range.
         """
         from jaxpg import stats
+        if not isinstance(other, Robustness):
+            raise ValueError(f"other: expected a Robustness, got {type(other).__name__}")
+        setting = self._setting("setting", setting)
+        other_setting = other._setting("other_setting", other_setting)
         if other.settings != self.settings or other.returns.shape[1] != self.returns.shape[1]:
             raise ValueError(f"other: must play the same physics settings with as many seeds, "
                              f"got {len(other.settings)} settings x {other.returns.shape[1]} "
@@ -604,6 +623,9 @@ def robustness(
     settings = physics_settings(env_grid, env_params)
     if network is None:
         network = (config or train_config.TrainConfig(env=env_params)).network
+    if not isinstance(network, nn.Module):
+        raise ValueError(f"network: expected the policy's flax module (TrainConfig.network) or "
+                         f"None, got {type(network).__name__}")
     function, policy_params = _split_policies(policies, network, env_params)
     grid_shape = (1, 1) if function else jax.tree.leaves(policy_params)[0].shape[:2]
     runs = math.prod(grid_shape) * len(settings)

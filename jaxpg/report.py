@@ -23,7 +23,7 @@ import numpy as np
 from jaxpg import atomic_files, checkpoint, plots, safe_read, stats
 from jaxpg.envs import cartpole
 from jaxpg.sweeps import SOLVED_WINDOW, SweepResult
-from jaxpg.validation import check_finite, check_int
+from jaxpg.validation import check_finite, check_int, check_number
 
 # summary.json's "format": the folders this version writes and reads.
 SWEEP_FORMAT = "jaxpg-sweep-1"
@@ -334,6 +334,7 @@ def compare(sweeps: Sequence[Source], confidence: float = 0.95, reps: int = 2000
         refuses.
     """
     reps = check_int("reps", reps, MIN_REPS, MAX_REPS + 1)  # before any folder is read
+    confidence = check_number("confidence", confidence)  # its range: `stats`
     loaded = _load(sweeps)
     check_comparable(loaded)
     units = _units(loaded)

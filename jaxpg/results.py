@@ -56,6 +56,9 @@ def save_sweep(result: SweepResult, out: str | os.PathLike[str],
       ReportRefused: a ValueError, for a comparison that `report.compare` refuses (a diverged
         run's scores), after the folder is in place without the report.
     """
+    if not isinstance(result, SweepResult):
+        raise ValueError(f"result: expected what jaxpg.sweep returns, a SweepResult, got "
+                         f"{type(result).__name__}")
     if result.config is None:
         raise ValueError("result: a SweepResult without its config; give what jaxpg.sweep returns")
     out = atomic_files.check_out_dir(out)

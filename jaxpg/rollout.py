@@ -243,7 +243,7 @@ def _over_time(values: jax.Array) -> jax.Array:
     return total
 
 
-def check_actions(action: Action, obs: Observation, discrete: bool = True) -> None:
+def check_actions(action: ArrayLike, obs: ArrayLike, discrete: bool = True) -> None:
     """Checks a policy's actions for `obs` `[..., K]` as the rollout is traced.
 
     Raises:
@@ -251,15 +251,15 @@ def check_actions(action: Action, obs: Observation, discrete: bool = True) -> No
         bool) for a discrete environment, a float for a continuous one.
     """
     dtype = jnp.result_type(action)
-    if discrete and (jnp.shape(action) != obs.shape[:-1] or not (
+    if discrete and (jnp.shape(action) != jnp.shape(obs)[:-1] or not (
             jnp.issubdtype(dtype, jnp.integer) or dtype == jnp.bool_)):
         raise ValueError(f"policy: must return one integer action per observation, shaped "
-                         f"{obs.shape[:-1]} (on CartPole 0 pushes left, 1 right), got {dtype} "
+                         f"{jnp.shape(obs)[:-1]} (on CartPole 0 pushes left, 1 right), got {dtype} "
                          f"{jnp.shape(action)}")
-    if not discrete and (jnp.shape(action) != obs.shape[:-1]
+    if not discrete and (jnp.shape(action) != jnp.shape(obs)[:-1]
                          or not jnp.issubdtype(dtype, jnp.floating)):
         raise ValueError(f"policy: must return one float action per observation, shaped "
-                         f"{obs.shape[:-1]}, got {dtype} {jnp.shape(action)}")
+                         f"{jnp.shape(obs)[:-1]}, got {dtype} {jnp.shape(action)}")
 
 
 def check_played_actions(invalid_action: ArrayLike | None, env_params: Any = cartpole.V1

@@ -346,7 +346,7 @@ def test_a_sweeps_run_takes_its_physics_and_bad_runs_are_refused(tmp_path):
                            runs={"grid": grid, "seeds": [4, 7]})
     run = checkpoint.select_run(checkpoint.load(path), 0, 1)
     assert run.config.env == CONFIG.env.replace(length=1.0)
-    for g, s in [(1, 0), (0, 2), (-1, 0)]:
+    for g, s in [(1, 0), (0, 2), (-1, 0), (0, 1.0), (True, 0)]:  # indices: integers in range
         with pytest.raises(ValueError, match=r"^run: expected g in \[0, 1\) and s in \[0, 2\)"):
             checkpoint.select_run(checkpoint.load(path), g, s)
     with pytest.raises(ValueError, match="^run: the checkpoint holds one run"):
@@ -492,6 +492,11 @@ def test_save_refuses_a_critic_the_loss_has_not_or_of_other_shapes(tmp_path):
     with pytest.raises(ValueError, match="^critic_params: parameters do not fit the critic"):
         checkpoint.save(tmp_path, _params(WITH_CRITIC), WITH_CRITIC,
                         critic_params=_params(WITH_CRITIC))
+    # Parameters that `load` would refuse: not saved either.
+    with pytest.raises(ValueError, match=r"^policy_params\.params\..*: expected float32 or "
+                                         r"float64 values, got float16$"):
+        checkpoint.save(tmp_path, jax.tree.map(lambda leaf: np.asarray(leaf, np.float16),
+                                               _params(CONFIG)), CONFIG)
     assert list(tmp_path.iterdir()) == []
 
 

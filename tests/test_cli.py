@@ -204,11 +204,16 @@ def test_a_train_killed_at_any_rename_leaves_the_earlier_result_or_the_new_one(t
     assert _result(out) == new
 
 
-def test_a_second_run_into_the_same_out_is_refused_with_one_line(tmp_path):
+@pytest.mark.parametrize("command", [
+    ["train", *SMALL],
+    ["evaluate", "--episodes", "5", "--max-steps", "20", "--length", "0.5,1.0"],
+])
+def test_a_second_run_into_the_same_out_is_refused_with_one_line(tmp_path, command):
+    """Before any work: nothing is trained or played, nothing printed."""
     out = tmp_path / "run"
     with claimed_by_another_process(out):
-        result = _run("train", *SMALL, "--out", str(out))
-    assert result.returncode == 2 and not out.exists()
+        result = _run(*command, "--out", str(out))
+    assert result.returncode == 2 and not out.exists() and not result.stdout
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and f"out: another jaxpg process is writing to {out}" in lines[0]
 

@@ -277,3 +277,37 @@ def test_robustness_intervals_resample_whole_policies():
         returns[1].mean(-1), returns[0].mean(-1), paired=True)
     with pytest.raises(ValueError, match="^other: must play the same physics settings"):
         table.improvement_ci(Robustness(returns[:, :, :2], table.settings[:2]))
+
+
+_FLOAT_ACTIONS = "policy: must return one integer action"  # both backends, as traced
+
+
+@pytest.mark.parametrize("env, policy, in_jaxpg, in_gymnasium", [
+    # Gymnasium would play 0.9 as 0, assert on 2 and sum NaN rewards.
+    ("CartPole-v1", lambda obs, u: (obs[..., 2] > 0).astype(jnp.float32) * 0.9, _FLOAT_ACTIONS,
+     _FLOAT_ACTIONS),
+    ("CartPole-v1", lambda obs, u: jnp.full(obs.shape[:-1], 2),
+     "policy: returned an action other than 0 .push left. or 1",
+     "policy: returned the action 2; allowed: 0 to 1"),
+    ("Pendulum-v1", lambda obs, u: jnp.full(obs.shape[:-1], jnp.nan),
+     "policy: returned an action other than a finite number",
+     "policy: returned the action nan; allowed: a finite number"),
+])
+def test_both_backends_refuse_a_policys_actions_outside_the_environments(
+        env, policy, in_jaxpg, in_gymnasium):
+    for backend, match in (("jaxpg", in_jaxpg), ("gymnasium", in_gymnasium)):
+        with pytest.raises(ValueError, match=f"^{match}"):
+            evaluate(policy, episodes=2, max_steps=5, env=env, backend=backend)
+
+
+def test_a_robustness_tables_intervals_name_bad_arguments():
+    table = Robustness(np.arange(2 * 4 * 3 * 5, dtype=np.float64).reshape(2, 4, 3, 5),
+                       [{"length": value} for value in (0.5, 1.0, 2.0)])
+    for call, match in [(lambda: table.bootstrap_ci(2), "setting: must be an integer in"),
+                        (lambda: table.bootstrap_ci(-1), "setting: must be an integer in"),
+                        (lambda: table.improvement_ci(None), "other: expected a Robustness"),
+                        (lambda: table.improvement_ci(table, other_setting=2), "other_setting: ")]:
+        with pytest.raises(ValueError, match=f"^{match}"):
+            call()
+    low, high = table.bootstrap_ci(1)
+    assert low <= high and table.improvement_ci(table, 1, 0) == (1.0, 1.0)  # g 1 beats g 0 always

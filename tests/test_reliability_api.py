@@ -5,7 +5,18 @@ import numpy as np
 import pytest
 from conftest import xla_compiles
 
-from jaxpg import TrainConfig, envs, evaluate, policies, programs, sweep, train
+from jaxpg import (
+    TrainConfig,
+    envs,
+    evaluate,
+    evaluation,
+    policies,
+    programs,
+    report,
+    results,
+    sweep,
+    train,
+)
 
 
 @pytest.mark.parametrize("value, match", [
@@ -38,3 +49,16 @@ def test_physics_that_float32_cannot_hold_are_refused_on_every_task(env, field, 
     with xla_compiles() as compiled, pytest.raises(ValueError, match=f"^{field}: {match}"):
         TrainConfig(env=envs.MODULES[env].make_params(env, **{field: value}))
     assert not compiled
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: report.compare(["unread"], confidence="0.9"), "^confidence: must be a number"),
+    (lambda: results.save_sweep(None, "unwritten"), "^result: expected what jaxpg.sweep returns"),
+    (lambda: evaluation.robustness(policies.basic_policy, network="mlp"),
+     "^network: expected the policy's flax module"),
+])
+def test_arguments_of_the_wrong_kind_are_named_in_one_line(call, match, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError, match=match):
+        call()
+    assert not list(tmp_path.iterdir())  # nothing read or written
