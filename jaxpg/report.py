@@ -250,6 +250,9 @@ def _load(sweeps: Sequence[Source]) -> list[Sweep]:
       ValueError: for no source, one given twice (a folder as `X` and `X/`, or through a link;
         one `SweepResult`), or one that is neither a folder's path nor a `SweepResult`.
     """
+    if isinstance(sweeps, str | os.PathLike | SweepResult):  # one, not a list of them
+        raise ValueError(f"sweeps: expected a list of sweep folders or SweepResults, got one "
+                         f"{type(sweeps).__name__}; give [{type(sweeps).__name__}]")
     if not sweeps:
         raise ValueError("sweeps: give at least one sweep folder or SweepResult")
     seen: dict[int | str, str] = {}

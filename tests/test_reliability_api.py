@@ -53,6 +53,7 @@ def test_physics_that_float32_cannot_hold_are_refused_on_every_task(env, field, 
 
 @pytest.mark.parametrize("call, match", [
     (lambda: report.compare(["unread"], confidence="0.9"), "^confidence: must be a number"),
+    (lambda: report.compare("unread"), "^sweeps: expected a list of sweep folders"),
     (lambda: results.save_sweep(None, "unwritten"), "^result: expected what jaxpg.sweep returns"),
     (lambda: evaluation.robustness(policies.basic_policy, network="mlp"),
      "^network: expected the policy's flax module"),

@@ -135,6 +135,9 @@ def test_save_animation_rejects_bad_arguments(tmp_path):
         render.save_animation(_frames(), "/proc/episode.gif")
     with pytest.raises(ValueError, match="^out: cannot write in .*missing"):
         render.check_animation_path(tmp_path / "missing" / "episode.gif", "out")
+    (tmp_path / "folder.gif").mkdir()
+    with pytest.raises(ValueError, match="^out: .*folder.gif is a directory"):
+        render.check_animation_path(tmp_path / "folder.gif", "out")
     with pytest.raises(ValueError, match="frames"):
         render.save_animation(_frames().astype(np.float32), tmp_path / "episode.gif")
     with pytest.raises(ValueError, match="fps"):

@@ -484,7 +484,7 @@ def check_animation_path(path: StrPath, name: str = "path") -> pathlib.Path:
 
     Raises:
       ValueError: naming `name` unless `path` ends with .gif or .mp4 and a file can be created in
-        its folder.
+        its folder, and is not a directory.
       ImportError: for MP4 without imageio-ffmpeg.
     """
     path = pathlib.Path(path)
@@ -498,5 +498,7 @@ def check_animation_path(path: StrPath, name: str = "path") -> pathlib.Path:
             raise ImportError(
                 "writing MP4 needs imageio-ffmpeg: pip install imageio-ffmpeg (or write a .gif)"
             ) from None
+    if path.is_dir():
+        raise ValueError(f"{name}: {path} is a directory; give the animation's file")
     atomic_files.check_writable(path.parent, name)
     return path
