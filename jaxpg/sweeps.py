@@ -170,8 +170,10 @@ def _axes(grid: dict[str, Any]) -> dict[str, list[float]]:
 
 
 def _as_trained(values: list[float]) -> list[float]:
-    """`values` as training computes with them: rounded to JAX's default float."""
-    return np.asarray(values, jax.dtypes.canonicalize_dtype(float)).tolist()
+    """`values` as training computes with them: rounded to JAX's default float (one too large for
+    it is the field's own check's to name)."""
+    with np.errstate(over="ignore"):
+        return np.asarray(values, jax.dtypes.canonicalize_dtype(float)).tolist()
 
 
 def setting_hyperparams(

@@ -4,7 +4,7 @@ import dataclasses
 import functools
 import inspect
 import warnings
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence, Set
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -91,7 +91,8 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         """Converts `hidden` and `randomize` to their kept forms and checks every field."""
-        if isinstance(self.hidden, Iterable) and not isinstance(self.hidden, str):
+        # A sequence of sizes (a dict or a set is no order of layers).
+        if isinstance(self.hidden, Iterable) and not isinstance(self.hidden, str | Mapping | Set):
             object.__setattr__(self, "hidden", tuple(self.hidden))
         if self.max_steps is None:
             object.__setattr__(self, "max_steps", envs.max_steps(self.env_params))

@@ -275,6 +275,7 @@ def test_held_out_episodes_draw_the_training_ranges_unless_asked_for_the_base_ph
 def test_seeds_and_held_out_episodes_beyond_memory_are_refused_in_one_line_naming_them(
         monkeypatch):
     monkeypatch.setattr(budget, "machine_memory", lambda: 2**30)  # 1 GiB, of which 80% usable
+    monkeypatch.setattr(schedule, "usable_cores", lambda: 2)
     config = TrainConfig(iterations=10, episodes=2, max_steps=20)
     seeds, settings = sweeps.check_arguments(config, range(4), eval_episodes=100)  # fits
     assert seeds.tolist() == [0, 1, 2, 3] and len(settings) == 1
@@ -282,11 +283,12 @@ def test_seeds_and_held_out_episodes_beyond_memory_are_refused_in_one_line_namin
                                          r"iterations .* needs about [\d.]+ GiB; this machine "
                                          r"has 1 GiB, of which jaxpg may use 80%$"):
         sweeps.check_arguments(config, range(10**7))
-    # 4 runs at once x 1048575 episodes x 20 steps x 10 floats x 4 bytes = 3355440000, and the
-    # returns kept, 4 x 1048575 x 8 = 33554400: 3388994400 bytes = 3.156 GiB.
+    # 4 runs train alone, one per core: 2 runs at once x 1048575 episodes x 20 steps x 10 floats
+    # x 4 bytes = 1677720000, and the returns kept, 4 x 1048575 x 8 = 33554400: 1711274400 bytes
+    # = 1.594 GiB.
     with pytest.raises(ValueError, match=r"^eval_episodes: playing 1048575 held-out episodes of "
-                                         r"at most 20 steps for each of 4 runs, 4 at once needs "
-                                         r"about 3\.156 GiB; this machine has 1 GiB"):
+                                         r"at most 20 steps for each of 4 runs, 2 at once needs "
+                                         r"about 1\.594 GiB; this machine has 1 GiB"):
         sweeps.check_arguments(config, range(4), eval_episodes=2**20 - 1)
     with pytest.raises(ValueError, match=r"^memory: training 1 run "):  # one run is too much
         sweeps.check_arguments(dataclasses.replace(config, episodes=10**6), range(4))

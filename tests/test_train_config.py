@@ -40,6 +40,7 @@ TOO_SMALL = r"must be at least 1\.175e-38 \(the smallest normal float32\)"
     ("entropy_coef", np.array([0.0]), "entropy_coef: must be a number"),
     ("optimizer", "lbfgs", "optimizer: cannot train with 'lbfgs'"),
     ("hidden", 5, "hidden: must be a tuple of positive layer sizes"),
+    ("hidden", {5: 1}, "hidden: must be a tuple of positive layer sizes"),  # no order of layers
     # Numbers that float32, the dtype training takes them in, cannot hold.
     ("learning_rate", 1e300, f"learning_rate: {TOO_LARGE}, got 1e\\+300$"),
     ("learning_rate", 1e-300, f"learning_rate: {TOO_SMALL}, got 1e-300$"),  # 0 in float32
