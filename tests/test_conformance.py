@@ -145,3 +145,22 @@ def test_command_refuses_bad_arguments_in_one_line(capsys, argv, match):
     status, out, err = run_cli(capsys, *argv)
     assert status == 2 and not out
     assert err.startswith(f"jaxpg conformance: error: {match}") and err.count("\n") == 1, err
+
+
+def test_an_episode_of_other_returns_counts_only_where_both_parted_still_together(monkeypatch):
+    """From an angle that one step takes to within rounding of 0 (theta + tau * theta_dot = 0
+    exactly), float32 and float64 put it on different sides, and the basic policy pushes one way
+    in jaxpg and the other in Gymnasium, while the states agree within 1e-3 but not within 1e-60.
+    Other physics in jaxpg part the states before the actions do: no excuse."""
+    params = cartpole.V1
+    flipping = np.array([0.0, 0.0, 1.7e-4, -1.7e-4 / params.tau])
+    assert conformance._parted_together(params, flipping, 1e-3)
+    assert not conformance._parted_together(params, flipping, 1e-60)
+    start = np.array([0.01, 0.0, 0.02, 0.0])
+    assert not conformance._parted_together(params, start, 1e-3)  # the same to the end
+    step = conformance.step_jaxpg
+    monkeypatch.setattr(conformance, "step_jaxpg", lambda values, times, actions, env_params: step(
+        values, times, actions, env_params.replace(gravity=12.0)))
+    assert not conformance._parted_together(params, start, 1e-3)
+    monkeypatch.setattr(conformance, "relative_error", lambda ours, theirs: np.zeros(4))
+    assert conformance._parted_together(params, start, 1e-3)  # they part, in actions or the end
