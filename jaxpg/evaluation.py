@@ -407,9 +407,9 @@ def _gymnasium_returns(
             chosen = np.asarray(_act(policy, obs, key, episode, t))
             # Checked as the jaxpg backend checks its actions, before Gymnasium takes them.
             rollout.check_actions(chosen[None], np.asarray(obs)[None], discrete)
-            if not (0 <= chosen < module.NUM_ACTIONS if discrete else np.isfinite(chosen)):
-                allowed = f"0 to {module.NUM_ACTIONS - 1}" if discrete else "a finite number"
-                raise ValueError(f"policy: returned the action {chosen}; allowed: {allowed}")
+            if rollout.outside_actions(chosen, module):
+                raise ValueError(f"policy: returned the action {chosen}; allowed: "
+                                 f"{rollout.allowed_actions(module)}")
             # Gymnasium's continuous action is `[1]` float32.
             action = int(chosen) if discrete else chosen.astype(np.float32).reshape(1)
             obs, reward, terminated, truncated, _ = gym_env.step(action)

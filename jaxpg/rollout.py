@@ -222,9 +222,7 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         returns = returns.astype(records.dtype)
     else:  # any rewards, summed in a fixed order, a run alike alone and beside others
         returns, alive_steps = sums.invariant_sum(records[:, k + 1], 0), _over_time(alive)
-    outside = ((action < 0) | (action > module.NUM_ACTIONS - 1) if discrete
-               else ~jnp.isfinite(action))
-    invalid = jnp.any(alive & outside, axis=(0, 1))
+    invalid = jnp.any(alive & outside_actions(action, module), axis=(0, 1))
     return Episodes(_transitions(records, discrete), returns, alive_steps, invalid)
 
 
@@ -262,6 +260,19 @@ def check_actions(action: ArrayLike, obs: ArrayLike, discrete: bool = True) -> N
                          f"{jnp.shape(obs)[:-1]}, got {dtype} {jnp.shape(action)}")
 
 
+def outside_actions(action: ArrayLike, module: Any) -> Any:
+    """Where `action` is none of the environment module's actions: a discrete one outside 0 to
+    `NUM_ACTIONS - 1`, a continuous one not finite (elementwise, on the host or traced)."""
+    if envs.is_discrete(module):
+        return (action < 0) | (action > module.NUM_ACTIONS - 1)  # type: ignore[operator]
+    return ~jnp.isfinite(action)
+
+
+def allowed_actions(module: Any) -> str:
+    """The actions of an environment module, in words."""
+    return f"0 to {module.NUM_ACTIONS - 1}" if envs.is_discrete(module) else "a finite number"
+
+
 def check_played_actions(invalid_action: ArrayLike | None, env_params: Any = cartpole.V1
                          ) -> None:
     """Checks on the host that a rollout's policy gave the environment's actions only.
@@ -279,9 +290,7 @@ def check_played_actions(invalid_action: ArrayLike | None, env_params: Any = car
     if module is cartpole:
         raise ValueError("policy: returned an action other than 0 (push left) or 1 (push right), "
                          "which CartPole played as 0")
-    allowed = (f"0 to {module.NUM_ACTIONS - 1}" if envs.is_discrete(module)
-               else "a finite number")
-    raise ValueError(f"policy: returned an action other than {allowed}")
+    raise ValueError(f"policy: returned an action other than {allowed_actions(module)}")
 
 
 class StreamState(NamedTuple):

@@ -502,18 +502,19 @@ def _parted_together(env_params: cartpole.CartPoleParams, start: np.ndarray,
     ours = theirs.astype(jnp.result_type(float))
     time_limit = cast(TimeLimit, gym_env)  # the outermost of make's wrappers
     for t in range(int(env_params.max_steps)):
-        together = bool(relative_error(ours, theirs).max() <= tolerance)
         action = int(basic_policy(jnp.asarray(ours)))
         if action != int(basic_policy(jnp.asarray(theirs.astype(np.float32)))):
-            return together
+            break
         stepped = step_jaxpg(ours[None], np.array([t]), np.array([action]), env_params)
         _, _, terminated, truncated, _ = time_limit.step(action)
         theirs, ours = _state(gym_env), stepped.values[0]
         if (terminated, truncated) != (stepped.terminated[0], stepped.truncated[0]):
-            return bool(relative_error(ours, theirs).max() <= tolerance)
+            break
         if terminated or truncated:
             return False  # played alike to the end: the returns differ otherwise
-    return False
+    else:
+        return False
+    return bool(relative_error(ours, theirs).max() <= tolerance)
 
 
 def episode_returns(
