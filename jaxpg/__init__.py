@@ -18,11 +18,11 @@ __version__ = "0.1.0"
 if TYPE_CHECKING:
     from importlib.machinery import ModuleSpec
 
+    from jaxpg import animation as render  # noqa: F401  (an attribute, left out of `__all__`)
     from jaxpg import losses
     from jaxpg.envs import cartpole
     from jaxpg.envs import conformance as conformance  # (attributes, left out of `__all__`)
     from jaxpg.envs import gym as gym
-    from jaxpg.envs import render as render
     from jaxpg.evaluation import EvalResult, evaluate, robustness
     from jaxpg.executables import keep_programs
     from jaxpg.iteration import Metrics, TrainResult
@@ -32,9 +32,10 @@ if TYPE_CHECKING:
     from jaxpg.sweeps import SweepResult, sweep, train
     from jaxpg.train_config import Hyperparams, TrainConfig
 
-# name: module; `render` and `conformance` too, as before they moved into `jaxpg.envs`
+# name: module; `conformance` too, as before it moved into `jaxpg.envs`; `render` is the
+# animations' module, which holds `jaxpg.envs.render.render_frame` too
 _MODULES = {"cartpole": "envs.cartpole", "conformance": "envs.conformance", "gym": "envs.gym",
-            "losses": "losses", "render": "envs.render"}
+            "losses": "losses", "render": "animation"}
 _DEFINED_IN = {  # public name: the module of jaxpg's that defines it
     "EvalResult": "evaluation",
     "evaluate": "evaluation",

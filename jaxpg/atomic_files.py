@@ -62,9 +62,10 @@ NAME_MAX = 255  # bytes in a file name (Linux, macOS and Windows file systems al
 def temporary_name(name: str, tag: str) -> str:
     """The name `.NAME.TAG` of a temporary entry beside `name`, within NAME_MAX bytes.
 
-    NAME is cut short (at a character) so that the whole fits in NAME_MAX bytes. The same `name`
-    and `tag` length always give the same cut, so that names made with other tags of that length
-    can be recognised (`_beside`).
+    NAME is cut short (at a character) so that the whole fits in NAME_MAX bytes as the file system
+    encodes it (`os.fsencode`: a byte that is not UTF-8 is one character). The same `name` and
+    `tag` length always give the same cut, so that names made with other tags of that length can
+    be recognised (`_beside`).
 
     Args:
       name: the name of the file or folder the entry belongs to.
@@ -73,8 +74,13 @@ def temporary_name(name: str, tag: str) -> str:
     Returns:
       The entry's name.
     """
-    room = max(NAME_MAX - len(tag.encode()) - 2, 0)
-    return f".{name.encode()[:room].decode(errors='ignore')}.{tag}"
+    room = max(NAME_MAX - len(os.fsencode(tag)) - 2, 0)
+    kept = 0
+    for end in range(1, len(name) + 1):
+        if len(os.fsencode(name[:end])) > room:
+            break
+        kept = end
+    return f".{name[:kept]}.{tag}"
 
 
 def _unique() -> str:
@@ -103,10 +109,37 @@ def check_not_replacing(out: StrPath, source: StrPath, what: str, written: str) 
                          f"writing {written} would replace; choose another folder")
 
 
+def check_path_names(path: StrPath, name: str) -> pathlib.Path:
+    """`path` as a `pathlib.Path`, checked that a file system can name it.
+
+    Args:
+      path: a file or folder, existing or not.
+      name: the name of the argument that gave it, which the message starts with.
+
+    Returns:
+      `path` as a `pathlib.Path`.
+
+    Raises:
+      ValueError: naming `name` for characters that no file name can hold (a lone surrogate) or
+        a part of the path longer than NAME_MAX bytes.
+    """
+    try:
+        parts = [os.fsencode(part) for part in pathlib.Path(path).parts]
+    except UnicodeEncodeError:
+        raise ValueError(f"{name}: {os.fspath(path)!r} holds characters that no file name can "
+                         "hold") from None
+    for part in parts:
+        if len(part) > NAME_MAX:
+            raise ValueError(f"{name}: the name {os.fsdecode(part)[:40]}... is {len(part)} "
+                             f"bytes long; a file name holds at most {NAME_MAX}")
+    return pathlib.Path(path)
+
+
 def check_out_dir(out: StrPath) -> pathlib.Path:
     """Checks that the output directory `out` can hold jaxpg's results; creates nothing.
 
-    Refused: an empty path, an existing file (or a file among its parents), the working directory
+    Refused: an empty path, one that no file system can name (`check_path_names`), an existing
+    file (or a file among its parents), the working directory
     or a directory above it, and a directory holding other directories, which jaxpg never writes
     (its results are files only).
 
@@ -121,7 +154,7 @@ def check_out_dir(out: StrPath) -> pathlib.Path:
     """
     if not os.fspath(out):
         raise ValueError("out: expected a directory, got an empty path")
-    out = pathlib.Path(out)
+    out = check_path_names(out, "out")
     if out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file; give a directory (it is created if missing)")
     for parent in out.parents:

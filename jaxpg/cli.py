@@ -722,18 +722,17 @@ def cmd_render(args: argparse.Namespace) -> None:
     Raises:
       ValueError: a bad argument, before anything is drawn.
     """
-    from jaxpg import envs
-    from jaxpg.envs import render
+    from jaxpg import animation, envs
     from jaxpg.validation import check_int
 
-    render.check_animation_path(args.out, "out")
+    animation.check_animation_path(args.out, "out")
     policy, config, description = _load_policy(args.policy, args.run)
     check_int("seed", args.seed, 0, 2**32)
     env_params = envs.resolve(_policy_env(args.env, config, args.policy))
     max_steps = envs.max_steps(env_params) if args.max_steps is None else args.max_steps
-    frames = render.render_episode(policy, seed=args.seed, env_params=env_params,
-                                   max_steps=max_steps)
-    render.save_animation(frames, args.out)
+    frames = animation.render_episode(policy, seed=args.seed, env_params=env_params,
+                                      max_steps=max_steps)
+    animation.save_animation(frames, args.out)
     print(f"wrote {args.out}: {description}, {len(frames) - 1} steps")
 
 

@@ -151,6 +151,29 @@ def test_long_names_get_temporary_names_that_fit(tmp_path):
     assert len(atomic_files.temporary_name("é" * 200, "lock").encode()) <= atomic_files.NAME_MAX
 
 
+def test_a_folder_whose_name_is_not_utf8_holds_results(tmp_path):
+    out = tmp_path / os.fsdecode(b"run-\xff\xfe")  # bytes a shell can pass, not UTF-8
+    atomic_files.claim(out)
+    _write(out, NEW)
+    assert _files(out) == NEW
+    assert sorted(os.listdir(os.fsencode(tmp_path))) == [b".run-\xff\xfe.lock", b"run-\xff\xfe"]
+    long = os.fsdecode(b"\xff" * 300)  # each undecodable byte is one character of one byte
+    room = atomic_files.NAME_MAX - len(".") - len(".lock")
+    expected = b"." + b"\xff" * room + b".lock"
+    assert os.fsencode(atomic_files.temporary_name(long, "lock")) == expected
+
+
+@pytest.mark.parametrize(("path", "message"), [
+    ("r" * 256, r"^out: the name r{40}\.\.\. is 256 bytes long; a file name holds at most 255$"),
+    ("ok/" + "é" * 128, r"^out: the name é{40}\.\.\. is 256 bytes long"),
+    ("\ud800", r"^out: '.*' holds characters that no file name can hold$"),
+])
+def test_names_no_file_system_takes_are_refused_naming_out(tmp_path, path, message):
+    with pytest.raises(ValueError, match=message):
+        atomic_files.claim(tmp_path / path)
+    assert list(tmp_path.iterdir()) == []  # nothing created
+
+
 def test_only_temporary_files_that_no_process_writes_are_removed(tmp_path):
     stale = tmp_path / ".p-1.xla.0123456789ab.tmp.xla"
     stale.write_bytes(b"half a program")

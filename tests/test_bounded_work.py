@@ -10,7 +10,7 @@ import pytest
 from conftest import xla_compiles
 
 from jaxpg import budget, cartpole, evaluate, policies, robustness
-from jaxpg.envs.render import render_episode
+from jaxpg.animation import render_episode
 
 # Far beyond any machine: 10**12 episodes of 200 steps are 8 * 10**15 bytes at 40 bytes a step.
 HUGE = 10**12

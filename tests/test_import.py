@@ -29,7 +29,7 @@ def test_importing_the_package_or_the_command_imports_nothing_heavy(module):
 
 
 MODULES = {"cartpole": "jaxpg.envs.cartpole", "conformance": "jaxpg.envs.conformance",
-           "gym": "jaxpg.envs.gym", "losses": "jaxpg.losses", "render": "jaxpg.envs.render"}
+           "gym": "jaxpg.envs.gym", "losses": "jaxpg.losses", "render": "jaxpg.animation"}
 
 
 @pytest.mark.parametrize("name", sorted({*jaxpg.__all__, *MODULES}))

@@ -137,13 +137,13 @@ def test_ctrl_c_in_the_first_seconds_of_jaxpg_train_leaves_out_untouched(tmp_pat
 _LONG_RENDER = """
 import jax
 from jaxpg import cli
-from jaxpg.envs import render
+from jaxpg import animation
 
 def episode(*args, **kwargs):
     long = jax.jit(lambda x: jax.lax.fori_loop(0, 2**31 - 1, lambda i, v: v * 0.5 + 1.0, x))
     return long(jax.numpy.ones(4096)).block_until_ready()  # minutes: 2**31 steps of 4096
 
-render.render_episode = episode
+animation.render_episode = episode
 cli.main(["render", "--max-steps", "10000000", "--out", "long.gif"])
 """
 

@@ -2,6 +2,7 @@
 
 import os
 import sys
+import warnings
 
 import gymnasium
 import imageio.v3 as iio
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from jaxpg import basic_policy, cartpole, render, rollout
+from jaxpg.envs import render as drawing
 
 # pygame without a display, and without its greeting on stdout.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
@@ -49,7 +51,7 @@ def test_frame_matches_gymnasium(gymnasium_frames, index):
     same = np.all(frame == expected, axis=-1)
     assert same.mean() >= 0.99
     # Every shape Gymnasium shows is there: the black cart and track, the pole, the axle.
-    drawn = {render.CART_COLOUR, render.POLE_COLOUR, render.AXLE_COLOUR}
+    drawn = {drawing.CART_COLOUR, drawing.POLE_COLOUR, drawing.AXLE_COLOUR}
     assert _colours(expected) & drawn == _colours(frame) & drawn != set()
 
 
@@ -61,7 +63,7 @@ def _colours(image):
 def test_pole_leans_the_way_theta_says(theta, side):
     # Positive theta leans the pole right (as the dynamics: it falls right), by about
     # sin(0.2) * 120 = 24 pixels at its top, for a cart centred at column 300.
-    pole = np.all(render.render_frame([0.0, 0.0, theta, 0.0]) == render.POLE_COLOUR, axis=-1)
+    pole = np.all(render.render_frame([0.0, 0.0, theta, 0.0]) == drawing.POLE_COLOUR, axis=-1)
     rows, cols = np.nonzero(pole)
     top = cols[rows < rows.min() + 5].mean()
     assert 15 < side * (top - 300) < 30
@@ -101,7 +103,7 @@ def test_render_episode_draws_every_state_of_the_episode():
 def _frames(count=4):
     frames = np.full((count, 40, 60, 3), 255, dtype=np.uint8)
     for t in range(count):
-        frames[t, 10:20, 10 * t:10 * t + 10] = render.POLE_COLOUR
+        frames[t, 10:20, 10 * t:10 * t + 10] = drawing.POLE_COLOUR
     return frames
 
 
@@ -121,11 +123,16 @@ def test_save_animation_mp4_needs_imageio_ffmpeg(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")  # imageio starts ffmpeg
 def test_save_animation_writes_mp4_when_available(tmp_path):
     pytest.importorskip("imageio_ffmpeg")
-    path = render.save_animation(render.render_frame(STATES), tmp_path / "episode.mp4")
-    assert iio.imread(path, index=None, plugin="FFMPEG").shape == (len(STATES), 400, 600, 3)
+    jax.numpy.zeros(1).block_until_ready()  # JAX started: it warns of any fork from now on
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        path = render.save_animation(render.render_frame(STATES), tmp_path / "episode.mp4")
+        assert [str(w.message) for w in caught] == []  # not JAX's warning of ffmpeg's fork
+        frames = iio.imread(path, index=None, plugin="FFMPEG")
+    assert any("os.fork() was called" in str(w.message) for w in caught)  # (the check works)
+    assert frames.shape == (len(STATES), 400, 600, 3)
 
 
 def test_save_animation_rejects_bad_arguments(tmp_path):
@@ -138,6 +145,8 @@ def test_save_animation_rejects_bad_arguments(tmp_path):
     (tmp_path / "folder.gif").mkdir()
     with pytest.raises(ValueError, match="^out: .*folder.gif is a directory"):
         render.check_animation_path(tmp_path / "folder.gif", "out")
+    with pytest.raises(ValueError, match="^out: the name r+... is 304 bytes long"):
+        render.check_animation_path(tmp_path / ("r" * 300 + ".gif"), "out")
     with pytest.raises(ValueError, match="frames"):
         render.save_animation(_frames().astype(np.float32), tmp_path / "episode.gif")
     with pytest.raises(ValueError, match="fps"):

@@ -13,6 +13,7 @@ import pytest
 import jaxpg
 from jaxpg import cartpole, checkpoint, cli, envs, render
 from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
+from jaxpg.envs import render as drawing
 
 # pygame without a display, and without its greeting on stdout.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
@@ -49,9 +50,9 @@ CASES = [
 FRAMES = [(name, attributes, fields, state) for name, attributes, fields, states in CASES
           for state in states]
 # Every colour drawn; any other colour in Gymnasium's frames is a blend of its anti-aliasing.
-DRAWN = {(255, 255, 255), render.TRACK_COLOUR, render.LINK_COLOUR, render.JOINT_COLOUR,
-         render.ROD_COLOUR, render.PIVOT_COLOUR, render.HILL_COLOUR, render.WHEEL_COLOUR,
-         render.FLAG_COLOUR}
+DRAWN = {(255, 255, 255), drawing.TRACK_COLOUR, drawing.LINK_COLOUR, drawing.JOINT_COLOUR,
+         drawing.ROD_COLOUR, drawing.PIVOT_COLOUR, drawing.HILL_COLOUR, drawing.WHEEL_COLOUR,
+         drawing.FLAG_COLOUR}
 
 
 def _gymnasium_frame(name, attributes, state):
@@ -143,7 +144,7 @@ def test_the_car_moves_with_its_position(params):
     scale = 600 / (0.6 - -1.2)  # pixels per unit of position: 333.3
     columns = []
     for position in [-1.1, -0.7, -0.3, 0.1, 0.5]:
-        rows, cols = _pixels(render.render_frame([position, 0.0], params), render.WHEEL_COLOUR)
+        rows, cols = _pixels(render.render_frame([position, 0.0], params), drawing.WHEEL_COLOUR)
         # The two wheels sit symmetrically about the car's centre, (position + 1.2) * 333.3
         # pixels from the left (-0.3: 300); each wheel's centre is truncated, a pixel at most.
         assert abs(cols.mean() - (position + 1.2) * scale) <= 1.5
@@ -161,7 +162,7 @@ def test_the_car_moves_with_its_position(params):
 ])
 def test_the_flag_stands_at_the_goal(params, flag):
     frame = render.render_frame([-0.5, 0.0], params)
-    _, cols = _pixels(frame, render.FLAG_COLOUR)
+    _, cols = _pixels(frame, drawing.FLAG_COLOUR)
     assert cols.min() == flag  # the pennant starts at the pole
     assert cols.max() <= flag + 25
 
@@ -177,7 +178,7 @@ def test_the_flag_stands_at_the_goal(params, flag):
     ([0.0, np.pi / 2, 0.0, 0.0], (113.6 + 11.4, 0, 113.6, 11.4)),
 ])
 def test_the_links_turn_with_their_angles(values, reach):
-    rows, cols = _pixels(render.render_frame(values, acrobot.V1), render.LINK_COLOUR)
+    rows, cols = _pixels(render.render_frame(values, acrobot.V1), drawing.LINK_COLOUR)
     drawn = (rows.max() - 250, 250 - rows.min(), cols.max() - 250, 250 - cols.min())
     # Within 2 pixels (truncation, the joints' circles drawn over the links' ends).
     np.testing.assert_allclose(drawn, reach, atol=2)
@@ -190,7 +191,7 @@ def test_the_links_turn_with_their_angles(values, reach):
     (-np.pi / 2, 0, -1),
 ])
 def test_the_rod_turns_with_theta(theta, up, left):
-    rows, cols = _pixels(render.render_frame([theta, 0.0], pendulum.V1), render.ROD_COLOUR)
+    rows, cols = _pixels(render.render_frame([theta, 0.0], pendulum.V1), drawing.ROD_COLOUR)
     # The rod's middle is half its 1 * 113.6 pixels from the axle at (250, 250).
     half = 500 / 4.4 / 2
     assert abs((250 - rows.mean()) - up * half) < 3

@@ -1,5 +1,4 @@
-"""Frames of every classic-control environment drawn with numpy alone (no pygame, no display), and
-GIF/MP4 writing.
+"""Frames of every classic-control environment drawn with numpy alone (no pygame, no display).
 
 `render_frame` reproduces the `render()` of Gymnasium's `CartPoleEnv`, `AcrobotEnv`,
 `MountainCarEnv`, `Continuous_MountainCarEnv` and `PendulumEnv` in `rgb_array` mode: the same
@@ -14,20 +13,17 @@ that curve, and where Pendulum's arrow would be.
 
 import functools
 import math
-import pathlib
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-import jax
 import numpy as np
 import numpy.typing as npt
 
-from jaxpg import atomic_files, budget, envs, rollout
-from jaxpg.atomic_files import StrPath
+from jaxpg import envs
 from jaxpg.envs import acrobot, cartpole, continuous_mountain_car, mountain_car, pendulum
 from jaxpg.envs.cartpole import CartPoleParams
-from jaxpg.types import HostArray, Policy
-from jaxpg.validation import check_finite, check_int
+from jaxpg.types import HostArray
+from jaxpg.validation import check_finite
 
 Colour = tuple[int, int, int]  # red, green, blue, each 0 to 255
 
@@ -103,6 +99,29 @@ def render_frame(state: Any, env_params: Any = cartpole.V1) -> HostArray:
         # pygame draws with y upwards and flips the image at the end; draw through a flipped view.
         scene.draw(frame[::-1], row, env_params)
     return frames if values.ndim == 2 else frames[0]
+
+
+def render_observations(obs: npt.ArrayLike, env_params: Any = cartpole.V1) -> HostArray:
+    """Draws the states that observations show, as `render_frame` draws states.
+
+    Args:
+      obs: `[T, OBS_SIZE]` observations of the environment of `env_params` (Acrobot's and
+        Pendulum's angles are read from their cosines and sines).
+      env_params: as `render_frame` takes.
+
+    Returns:
+      uint8 frames `[T, H, W, 3]`.
+
+    Raises:
+      ValueError: as `render_frame` does.
+    """
+    scene = _scene(env_params)
+    return render_frame(scene.values_of_obs(np.asarray(obs, np.float64)), env_params)
+
+
+def check_drawn(env_params: Any) -> None:
+    """Raises a ValueError naming `env_params` unless its environment is one drawn here."""
+    _scene(env_params)
 
 
 def _scene(env_params: Any) -> _Scene:
@@ -397,108 +416,3 @@ def _fill_circle(surface: HostArray, cx: int, cy: int, radius: int, colour: Colo
     half = half[np.abs(offsets)]
     on_surface = (rows >= 0) & (rows < surface.shape[0])
     _fill_spans(surface, rows[on_surface], (cx - half)[on_surface], (cx + half)[on_surface], colour)
-
-
-def render_episode(policy: Policy, seed: int = 0, env_params: Any = cartpole.V1,
-                   max_steps: int = 500) -> HostArray:
-    """Plays one episode with `policy` and draws it, from the first state to the last.
-
-    The states drawn are those the policy observed (Acrobot's and Pendulum's angles from their
-    cosines and sines), and the state after the last step.
-
-    Args:
-      policy: `(obs [E, K], u [E]) -> action [E]`, as `rollout.rollout` takes.
-      seed: seeds the initial state and the policy's randomness.
-      env_params: the environment's params (CartPole's by default), as `render_frame` takes.
-      max_steps: the most steps drawn (the episode also ends when `env_params` ends it).
-
-    Returns:
-      uint8 frames `[T, H, W, 3]` (`render_frame`'s), T <= max_steps + 1: the initial state and
-      the state after each step.
-
-    Raises:
-      ValueError: for params of an environment not drawn, a `max_steps` below 1 or one whose
-        frames need more memory than the machine's (`budget.render_bytes`), or a policy that gave
-        an action outside the environment's.
-    """
-    scene = _scene(env_params)
-    check_int("max_steps", max_steps)
-    budget.check_fits(budget.render_bytes(max_steps, int(env_params.max_steps)), "max_steps",
-                      f"drawing an episode of at most {max_steps} steps")
-    # One step more than drawn, so that the state after the last drawn step is observed too.
-    episodes = rollout.rollout(jax.random.PRNGKey(seed), policy, env_params, 1, max_steps + 1)
-    rollout.check_played_actions(episodes.invalid_action, env_params)
-    length = min(int(episodes.lengths[0]), max_steps)
-    obs = np.asarray(episodes.transitions.obs[: length + 1, 0], dtype=np.float64)
-    return render_frame(scene.values_of_obs(obs), env_params)
-
-
-def save_animation(frames: npt.ArrayLike, path: StrPath, fps: float = 50
-                   ) -> pathlib.Path:
-    """Writes frames as an animated GIF, or as MP4 when `path` ends with `.mp4`.
-
-    MP4 needs the optional `imageio-ffmpeg` package. The file is replaced atomically.
-
-    Args:
-      frames: uint8 `[T, H, W, 3]`.
-      path: the file to write, `.gif` or `.mp4`.
-      fps: frames per second.
-
-    Returns:
-      The `pathlib.Path` written.
-
-    Raises:
-      ValueError: for frames of another shape or dtype, an fps not positive, or a path that
-        `check_animation_path` rejects.
-    """
-    import imageio.v3 as iio
-
-    frames = np.asarray(frames)
-    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
-        raise ValueError(
-            f"frames: expected uint8 [T, H, W, 3], got {frames.dtype} {frames.shape}"
-        )
-    if not fps > 0:
-        raise ValueError(f"fps: must be positive, got {fps}")
-    path = check_animation_path(path)
-    if path.suffix.lower() == ".mp4":
-        # 8-pixel blocks divide 600 x 400 exactly; the default 16 would resize the frames.
-        options: dict[str, Any] = {"plugin": "FFMPEG", "fps": fps, "macro_block_size": 8}
-    else:
-        # The duration is in milliseconds (GIF keeps hundredths); loop=0 repeats forever.
-        options = {"plugin": "pillow", "duration": 1000 / fps, "loop": 0}
-    with atomic_files.atomic_path(path) as tmp:
-        iio.imwrite(tmp, frames, **options)
-    return path
-
-
-def check_animation_path(path: StrPath, name: str = "path") -> pathlib.Path:
-    """`path` as a Path that `save_animation` can write, checked before anything is drawn.
-
-    Args:
-      path: the file to write.
-      name: the argument's name, which a message starts with.
-
-    Returns:
-      `path` as a `pathlib.Path`.
-
-    Raises:
-      ValueError: naming `name` unless `path` ends with .gif or .mp4 and a file can be created in
-        its folder, and is not a directory.
-      ImportError: for MP4 without imageio-ffmpeg.
-    """
-    path = pathlib.Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".gif", ".mp4"):
-        raise ValueError(f"{name}: must end with .gif or .mp4, got {path.name!r}")
-    if suffix == ".mp4":
-        try:
-            import imageio_ffmpeg  # noqa: F401  (the plugin imageio needs for MP4)
-        except ImportError:
-            raise ImportError(
-                "writing MP4 needs imageio-ffmpeg: pip install imageio-ffmpeg (or write a .gif)"
-            ) from None
-    if path.is_dir():
-        raise ValueError(f"{name}: {path} is a directory; give the animation's file")
-    atomic_files.check_writable(path.parent, name)
-    return path
