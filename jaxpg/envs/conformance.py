@@ -33,15 +33,12 @@ Besides the presets' variants, three physics settings change every physical fiel
 
 import dataclasses
 from collections.abc import Collection
-from typing import Any, cast
+from typing import Any
 
 import gymnasium
-import jax
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
-from gymnasium.envs.classic_control.cartpole import CartPoleEnv
-from gymnasium.wrappers import TimeLimit
 
 from jaxpg import envs
 from jaxpg.envs import cartpole, parity
@@ -50,7 +47,6 @@ from jaxpg.evaluation import (
     evaluate,
     gymnasium_reset_states,
     make_gymnasium_env,
-    reset_gymnasium,
 )
 from jaxpg.policies import basic_policy
 from jaxpg.validation import check_int
@@ -79,6 +75,11 @@ VARIANTS: dict[str, dict[str, Any]] = {
 # the float32 state is within about one spacing of the float64 one after a step, and the threshold
 # itself is rounded to float32 by half a spacing.
 THRESHOLD_SPACINGS = 4
+
+# CartPole as `parity.step_gymnasium` and `parity.step_jaxpg` step it: each step from a state set
+# on Gymnasium's env as if no earlier step had terminated (or it would reward 0 and warn).
+TASK = parity.Task(cartpole, cartpole.CartPoleState,
+                   restart=lambda env: setattr(env, "steps_beyond_terminated", None))
 
 
 def tolerance_for(dtype: FloatDType) -> float:
@@ -205,25 +206,14 @@ def compare(
     )
 
 
-@jax.jit
-def _step_values(
-    values: jax.Array, times: jax.Array, actions: jax.Array, env_params: cartpole.CartPoleParams
-) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-    """`cartpole.step` from each of N states: (states `[N, 4]`, reward, terminated, truncated)."""
-    state = cartpole.CartPoleState.from_array(values, times)
-    _, state, reward, terminated, truncated = jax.vmap(cartpole.step, in_axes=(0, 0, None))(
-        state, actions, env_params
-    )
-    return state.to_array(), reward, terminated, truncated
-
-
 def step_jaxpg(
     values: npt.ArrayLike,
     times: npt.ArrayLike,
     actions: npt.ArrayLike,
     env_params: cartpole.CartPoleParams,
 ) -> Outcome:
-    """jaxpg's step from each of N states, as one compiled batch in jaxpg's dtype.
+    """jaxpg's step from each of N states, as one compiled batch in jaxpg's dtype
+    (`parity.step_jaxpg` of `TASK`).
 
     Args:
       values: `[N, 4]` states (rounded to jaxpg's dtype).
@@ -235,16 +225,19 @@ def step_jaxpg(
       `Outcome` of `[N]` steps.
     """
     cartpole.check_params(env_params)
-    return Outcome(*(np.asarray(a) for a in _step_values(values, times, actions, env_params)))
+    return parity.step_jaxpg(TASK, env_params, np.asarray(values), np.asarray(times),
+                             np.asarray(actions))
 
 
 def step_gymnasium(
     gym_env: gymnasium.Env, values: np.ndarray, times: np.ndarray, actions: np.ndarray
 ) -> Outcome:
-    """Gymnasium's step from each of N states set on one `make_gymnasium_env` environment.
+    """Gymnasium's step from each of N states set on one `make_gymnasium_env` environment
+    (`parity.step_gymnasium` of `TASK`).
 
-    The float64 state goes into `CartPoleEnv.state` and the step count into the TimeLimit, so
-    `CartPoleEnv.step` and `TimeLimit.step` themselves decide everything.
+    The float64 state goes into `CartPoleEnv.state` (its `steps_beyond_terminated` cleared) and
+    the step count into the TimeLimit, so `CartPoleEnv.step` and `TimeLimit.step` themselves
+    decide everything.
 
     Args:
       gym_env: an environment of `make_gymnasium_env`, its TimeLimit outermost.
@@ -255,20 +248,7 @@ def step_gymnasium(
     Returns:
       `Outcome` of `[N]` steps, the states in float64.
     """
-    reference = cast(CartPoleEnv, gym_env.unwrapped)
-    if reference.state is None:
-        gym_env.reset(seed=0)  # the wrappers refuse a step before the first reset
-    out = Outcome(np.empty((len(values), 4)), np.empty(len(values)),
-                  np.empty(len(values), bool), np.empty(len(values), bool))
-    time_limit = cast(TimeLimit, gym_env)  # the outermost of make's wrappers
-    for i, (state, time, action) in enumerate(zip(values, times, actions, strict=True)):
-        reference.state = np.array(state, dtype=np.float64)
-        reference.steps_beyond_terminated = None
-        # Gymnasium declares it None, as it is until the first reset.
-        time_limit._elapsed_steps = int(time)  # type: ignore[assignment]
-        _, out.reward[i], out.terminated[i], out.truncated[i], _ = gym_env.step(int(action))
-        out.values[i] = reference.state
-    return out
+    return parity.step_gymnasium(TASK, gym_env, values, times, actions)
 
 
 def stabilizing_actions(obs: np.ndarray) -> np.ndarray:
@@ -440,10 +420,8 @@ def _run_variant(
     divergence_tolerance: float,
 ) -> VariantReport:
     """`VariantReport` of `episodes` episodes played in both, stepping all episodes together."""
-    gym_envs = [make_gymnasium_env(env_params) for _ in range(episodes)]
-    for i, gym_env in enumerate(gym_envs):
-        reset_gymnasium(gym_env, seed + i, env_params)
-    gym_values = np.stack([_state(gym_env) for gym_env in gym_envs])  # [E, 4] float64
+    gym_env = make_gymnasium_env(env_params)
+    gym_values = gymnasium_reset_states(episodes, seed, env_params)  # [E, 4] float64
     free_values = gym_values.astype(dtype)  # jaxpg's own trajectory
     rng = np.random.default_rng(seed)
     random_rate = np.linspace(0.0, 1.0, episodes)
@@ -460,7 +438,11 @@ def _run_variant(
                           np.tile(actions, 2), env_params)
         synced = Outcome(*(a[:episodes] for a in both))
         free = Outcome(*(a[episodes:] for a in both))
-        gym_out = _step_all(gym_envs, actions, alive, gym_values)
+        stepped = step_gymnasium(gym_env, gym_values[alive], times[alive], actions[alive])
+        gym_out = Outcome(gym_values.copy(), np.zeros(episodes), np.zeros(episodes, bool),
+                          np.zeros(episodes, bool))  # the episodes that ended stay as they are
+        for whole, part in zip(gym_out, stepped, strict=True):
+            whole[alive] = part
         stats = stats.merge(compare(synced, gym_out, env_params, dtype, mask=alive))
         times += 1
         parts = alive & (parted_at == 0) & (
@@ -497,20 +479,20 @@ def _parted_together(env_params: cartpole.CartPoleParams, start: np.ndarray,
     and in Gymnasium each on its own trajectory, first differs (in the action chosen or in the
     episode's end) where the two states still agree within `tolerance` (`relative_error`)."""
     gym_env = make_gymnasium_env(env_params)
-    reset_gymnasium(gym_env, 0, env_params)  # the wrappers refuse a step before a reset
-    cast(CartPoleEnv, gym_env.unwrapped).state = theirs = np.array(start, np.float64)
-    ours = theirs.astype(jnp.result_type(float))
-    time_limit = cast(TimeLimit, gym_env)  # the outermost of make's wrappers
+    theirs = np.array(start, np.float64)
+    ours = theirs.astype(jaxpg_dtype())
     for t in range(int(env_params.max_steps)):
         action = int(basic_policy(jnp.asarray(ours)))
         if action != int(basic_policy(jnp.asarray(theirs.astype(np.float32)))):
             break
-        stepped = step_jaxpg(ours[None], np.array([t]), np.array([action]), env_params)
-        _, _, terminated, truncated, _ = time_limit.step(action)
-        theirs, ours = _state(gym_env), stepped.values[0]
-        if (terminated, truncated) != (stepped.terminated[0], stepped.truncated[0]):
+        time, act = np.array([t]), np.array([action])
+        mine = step_jaxpg(ours[None], time, act, env_params)
+        gyms = step_gymnasium(gym_env, theirs[None], time, act)
+        ours, theirs = mine.values[0], gyms.values[0]
+        ends = (gyms.terminated[0], gyms.truncated[0])
+        if ends != (mine.terminated[0], mine.truncated[0]):
             break
-        if terminated or truncated:
+        if any(ends):
             return False  # played alike to the end: the returns differ otherwise
     else:
         return False
@@ -539,30 +521,3 @@ def episode_returns(
 
     return (play(init_states=gymnasium_reset_states(episodes, seed, env_params)),
             play(backend="gymnasium"))
-
-
-def _step_all(
-    gym_envs: list[gymnasium.Env], actions: np.ndarray, alive: np.ndarray, values: np.ndarray
-) -> Outcome:
-    """Steps the Gymnasium environments still alive; the others keep their `values`.
-
-    Args:
-      gym_envs: E environments of `make_gymnasium_env`.
-      actions: `[E]` actions.
-      alive: `[E]` bool: the environments to step.
-      values: `[E, 4]` float64 states, kept where not alive.
-
-    Returns:
-      `Outcome` of the E environments: reward 0 and not terminated or truncated where not alive.
-    """
-    out = Outcome(values.copy(), np.zeros(len(gym_envs)), np.zeros(len(gym_envs), bool),
-                  np.zeros(len(gym_envs), bool))
-    for i in np.flatnonzero(alive):
-        _, out.reward[i], out.terminated[i], out.truncated[i], _ = gym_envs[i].step(int(actions[i]))
-        out.values[i] = _state(gym_envs[i])
-    return out
-
-
-def _state(gym_env: gymnasium.Env) -> np.ndarray:
-    """The float64 state `[4]` of `gym_env`'s `CartPoleEnv`, which a reset has set."""
-    return cast(np.ndarray, cast(CartPoleEnv, gym_env.unwrapped).state)

@@ -10,7 +10,8 @@ within the same; truncations equal; terminations equal except where Gymnasium's 
 within the float32 step's own error of a threshold ("near threshold", not a failure). Resets are
 compared as distributions: the same ranges, means and shapes.
 
-CartPole's harness, which also plays whole episodes, is `jaxpg.envs.conformance`.
+CartPole's harness, which also plays whole episodes, is `jaxpg.envs.conformance`; it steps
+both sides with `step_gymnasium` and `step_jaxpg` here (a `Task`).
 """
 
 import dataclasses
@@ -48,8 +49,32 @@ class Outcome(NamedTuple):
 
 
 @dataclasses.dataclass(frozen=True)
-class Case:
-    """How one environment is drawn, stepped in Gymnasium and compared.
+class Task:
+    """An environment as `step_gymnasium` and `step_jaxpg` step it: a `Case`, or CartPole's
+    (`jaxpg.envs.conformance.TASK`).
+
+    Attributes:
+      module: the jaxpg module.
+      state: its state class, with `from_array` and `to_array`.
+      restart: optional, keyword only: `(Gymnasium's unwrapped env) -> None`, run before each
+        step to clear what the env keeps of earlier steps (CartPole's `steps_beyond_terminated`).
+    """
+
+    module: ModuleType
+    state: Any  # a state class, with `from_array`
+    restart: Callable[[Any], None] | None = dataclasses.field(default=None, kw_only=True)
+
+    def gym_action(self, action: Any) -> Any:
+        """An action as Gymnasium takes it: an int, or a float64 `[1]` (see `pendulum`)."""
+        if hasattr(self.module, "NUM_ACTIONS"):
+            return int(action)
+        return np.array([action], np.float64)
+
+
+@dataclasses.dataclass(frozen=True)
+class Case(Task):
+    """How one environment is drawn, stepped in Gymnasium and compared: a `Task` whose
+    Gymnasium environment keeps nothing of earlier steps (no `restart`).
 
     Attributes:
       module: the jaxpg module.
@@ -67,8 +92,6 @@ class Case:
       aim: optional: (value index, target field) of the states moved to land near a threshold.
     """
 
-    module: ModuleType
-    state: Any  # a state class, with `from_array`
     low: tuple[float, ...]
     high: tuple[float, ...]
     actions: Callable[[np.random.Generator, int], np.ndarray]
@@ -78,12 +101,6 @@ class Case:
     near: Callable[[np.ndarray, Any, np.ndarray], np.ndarray]
     variants: dict[str, Any]
     aim: tuple[int, str] | None = None
-
-    def gym_action(self, action: Any) -> Any:
-        """An action as Gymnasium takes it: an int, or a float64 `[1]` (see `pendulum`)."""
-        if hasattr(self.module, "NUM_ACTIONS"):
-            return int(action)
-        return np.array([action], np.float64)
 
 
 def set_attributes(names: dict[str, str]) -> Callable[[Any, Any], None]:
@@ -218,13 +235,17 @@ def make_gymnasium(case: Case, env_params: Any) -> gymnasium.Env:
     return gym_env
 
 
-def step_gymnasium(case: Case, gym_env: gymnasium.Env, values: np.ndarray, times: np.ndarray,
+def step_gymnasium(task: Task, gym_env: gymnasium.Env, values: np.ndarray, times: np.ndarray,
                    actions: np.ndarray) -> Outcome:
-    """Gymnasium's step from each of N states, its step count set in its TimeLimit.
+    """Gymnasium's step from each of N states set on one environment.
+
+    Each float64 state goes into the unwrapped env's `state` (then `task.restart`, if any) and its
+    step count into the TimeLimit, so Gymnasium's own `step`s decide everything.
 
     Args:
-      case: the task.
-      gym_env: an environment of `make_gymnasium`.
+      task: a `Case` or CartPole's `conformance.TASK`; its `gym_action` casts each action.
+      gym_env: an environment of `make_gymnasium` or `evaluation.make_gymnasium_env`, its
+        TimeLimit outermost; reset here first if it never was (its wrappers refuse a step before).
       values: `[N, K]` states.
       times: `[N]` steps already taken in each episode.
       actions: `[N]` actions.
@@ -232,14 +253,19 @@ def step_gymnasium(case: Case, gym_env: gymnasium.Env, values: np.ndarray, times
     Returns:
       `Outcome` of the N steps, the states in float64.
     """
+    reference: Any = gym_env.unwrapped
+    if getattr(reference, "state", None) is None:
+        gym_env.reset(seed=0)
     out = Outcome(np.empty(values.shape), np.empty(len(values)), np.empty(len(values), bool),
                   np.empty(len(values), bool))
     for i, (state, time, action) in enumerate(zip(values, times, actions, strict=True)):
-        gym_env.unwrapped.state = np.array(state, np.float64)  # type: ignore[attr-defined]
+        reference.state = np.array(state, np.float64)
+        if task.restart is not None:
+            task.restart(reference)
         gym_env._elapsed_steps = int(time)  # type: ignore[attr-defined]
         _, out.reward[i], out.terminated[i], out.truncated[i], _ = gym_env.step(
-            case.gym_action(action))
-        out.values[i] = np.asarray(gym_env.unwrapped.state, np.float64)  # type: ignore[attr-defined]
+            task.gym_action(action))
+        out.values[i] = np.asarray(reference.state, np.float64)
     return out
 
 
@@ -264,12 +290,12 @@ def _jitted_step(module: ModuleType, params_axes: Any) -> Callable[..., Any]:
     return jax.jit(jax.vmap(module.step, in_axes=(0, 0, params_axes)))
 
 
-def step_jaxpg(case: Case, env_params: Any, values: np.ndarray, times: np.ndarray,
+def step_jaxpg(task: Task, env_params: Any, values: np.ndarray, times: np.ndarray,
                actions: np.ndarray) -> Outcome:
-    """jaxpg's vmapped step from N states, in JAX's default float dtype.
+    """jaxpg's vmapped step from N states, in JAX's default float dtype (jaxpg's).
 
     Args:
-      case: the task.
+      task: a `Case` or CartPole's `conformance.TASK`.
       env_params: the params; its numbers that are arrays `[N]` are vmapped over with the states.
       values: `[N, K]` states (rounded to JAX's default float).
       times: `[N]` steps already taken in each episode.
@@ -278,11 +304,19 @@ def step_jaxpg(case: Case, env_params: Any, values: np.ndarray, times: np.ndarra
     Returns:
       `Outcome` of the N steps, the states in JAX's default float.
     """
-    state = case.state.from_array(np.asarray(values, jnp.result_type(float)), times)
-    _, state, reward, terminated, truncated = batched_step(case.module, env_params)(
-        state, jnp.asarray(actions), env_params)
-    return Outcome(*(np.asarray(leaf) for leaf in (state.to_array(), reward, terminated,
-                                                   truncated)))
+    return Outcome(*(np.asarray(leaf) for leaf in _step_values(
+        task.module, task.state, np.asarray(values, jnp.result_type(float)), times, actions,
+        env_params)))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def _step_values(module: ModuleType, state: Any, values: jax.Array, times: jax.Array,
+                 actions: jax.Array, env_params: Any) -> tuple[jax.Array, ...]:
+    """`step_jaxpg`'s compiled part, from arrays to arrays: (states `[N, K]`, reward,
+    terminated, truncated); compiled once per module, params' static fields and shape."""
+    _, new, reward, terminated, truncated = batched_step(module, env_params)(
+        state.from_array(values, times), actions, env_params)
+    return new.to_array(), reward, terminated, truncated
 
 
 def draw(case: Case, env_params: Any, rng: np.random.Generator, n: int
