@@ -7,15 +7,14 @@ imported (at once where it already is); `gymnasium.make` imports their adapters 
 """
 
 import importlib
-import importlib.util
 import sys
-from collections.abc import Sequence
 from types import ModuleType  # (not `types`: jaxpg.types would replace it)
-from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
 
+TYPE_CHECKING = False  # (as typing's, which mypy reads as True, without importing typing)
 if TYPE_CHECKING:
+    from collections.abc import Sequence
     from importlib.machinery import ModuleSpec
 
     from jaxpg import animation as render  # noqa: F401  (an attribute, left out of `__all__`)
@@ -114,11 +113,13 @@ class _RegisterOnImport:
     find the module, and has its loader call `_register_ids` once the module has run.
     """
 
-    def find_spec(self, name: str, path: Sequence[str] | None,
+    def find_spec(self, name: str, path: "Sequence[str] | None",
                   target: ModuleType | None = None) -> "ModuleSpec | None":
         """The other finders' spec of `gymnasium`, its loader registering; None for others."""
         if name != "gymnasium":
             return None
+        import importlib.util
+
         sys.meta_path.remove(self)
         spec = importlib.util.find_spec(name)
         if spec is None or spec.loader is None:

@@ -132,6 +132,35 @@ def test_ctrl_c_in_the_first_seconds_of_jaxpg_train_leaves_out_untouched(tmp_pat
     assert _snapshot(out) == before and out.stat().st_ino == inode  # (not replaced by a copy)
 
 
+# The command's entry point, its import of `jaxpg.cli` held up (standing for a slow machine's).
+_SLOW_IMPORT = """
+import sys, time
+
+class Slow:
+    def find_spec(self, name, path, target=None):
+        if name == "jaxpg.cli":
+            print("importing", flush=True)
+            time.sleep(60)
+        return None
+
+sys.meta_path.insert(0, Slow())
+from jaxpg.__main__ import main
+main()
+"""
+
+
+def test_ctrl_c_while_the_command_imports_its_modules_exits_130_with_one_line(tmp_path):
+    process = subprocess.Popen([sys.executable, "-c", _SLOW_IMPORT, "train"], cwd=tmp_path,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline() == "importing\n"
+        process.send_signal(signal.SIGINT)
+        status = process.wait(timeout=5)
+    finally:
+        process.kill()
+    assert (status, process.stderr.read()) == (130, "jaxpg: interrupted\n")
+
+
 # A render whose episode is one compiled loop of 2**31 - 1 steps: it runs until the signal ends it.
 # (The basic policy's own episodes end within a hundred steps, too soon to be interrupted.)
 _LONG_RENDER = """
