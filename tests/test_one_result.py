@@ -149,16 +149,22 @@ main()
 """
 
 
-def test_ctrl_c_while_the_command_imports_its_modules_exits_130_with_one_line(tmp_path):
-    process = subprocess.Popen([sys.executable, "-c", _SLOW_IMPORT, "train"], cwd=tmp_path,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+def _interrupted_once_it_says(code, line, *args):
+    """Runs `python -c CODE ARGS`, sends SIGINT once it prints `line`: (status, stderr)."""
+    process = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
     try:
-        assert process.stdout.readline() == "importing\n"
+        assert process.stdout.readline() == line
         process.send_signal(signal.SIGINT)
-        status = process.wait(timeout=5)
+        status = process.wait(timeout=20)
     finally:
         process.kill()
-    assert (status, process.stderr.read()) == (130, "jaxpg: interrupted\n")
+    return status, process.stderr.read()
+
+
+def test_ctrl_c_while_the_command_imports_its_modules_exits_130_with_one_line():
+    assert _interrupted_once_it_says(_SLOW_IMPORT, "importing\n", "train") == (
+        130, "jaxpg: interrupted\n")
 
 
 # A render whose episode is one compiled loop of 2**31 - 1 steps: it runs until the signal ends it.
@@ -229,16 +235,8 @@ cli.main(["conformance"])
 
 
 def test_the_interrupted_line_is_said_once_when_the_command_says_it_slowly():
-    process = subprocess.Popen([sys.executable, "-c", _SAID_SLOWLY], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
-    try:
-        assert process.stdout.readline() == "running\n"
-        process.send_signal(signal.SIGINT)
-        status = process.wait(timeout=20)
-    finally:
-        process.kill()
-    assert status == 130
-    assert process.stderr.read() == "jaxpg conformance: interrupted\n"
+    assert _interrupted_once_it_says(_SAID_SLOWLY, "running\n") == (
+        130, "jaxpg conformance: interrupted\n")
 
 
 def test_no_output_folder_replaced_once_cancelled(tmp_path, monkeypatch):
