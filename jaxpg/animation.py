@@ -48,8 +48,10 @@ def render_episode(policy: Policy, seed: int = 0, env_params: Any = cartpole.V1,
     check_int("max_steps", max_steps)
     budget.check_fits(budget.render_bytes(max_steps, int(env_params.max_steps)), "max_steps",
                       f"drawing an episode of at most {max_steps} steps")
-    # One step more than drawn, so that the state after the last drawn step is observed too.
-    episodes = rollout.rollout(jax.random.PRNGKey(seed), policy, env_params, 1, max_steps + 1)
+    # The time limit ends the episode anyway. One step more than drawn, so that the state after
+    # the last drawn step is observed too.
+    steps = min(max_steps, int(env_params.max_steps)) + 1
+    episodes = rollout.rollout(jax.random.PRNGKey(seed), policy, env_params, 1, steps)
     rollout.check_played_actions(episodes.invalid_action, env_params)
     length = min(int(episodes.lengths[0]), max_steps)
     return render.render_observations(episodes.transitions.obs[: length + 1, 0], env_params)

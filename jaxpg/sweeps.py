@@ -155,11 +155,15 @@ def _check_fields(names: Collection[str], config: train_config.TrainConfig) -> N
 
 
 def _axes(grid: dict[str, Any]) -> dict[str, list[float]]:
-    """A dict grid's axes as lists of Python numbers; a ValueError for an empty or repeated one."""
+    """A dict grid's axes as lists of Python numbers; a ValueError for an empty or repeated one.
+
+    Each value is checked as given (`check_number`), before numpy could make a list's `True` or
+    `"2"` a number of the list's dtype.
+    """
     axes = {}
     for name, values in grid.items():
-        options = [check_number(name, value)
-                   for value in np.atleast_1d(np.asarray(values)).tolist()]
+        given = list(values) if isinstance(values, list | tuple) else np.atleast_1d(values)
+        options = [check_number(name, value) for value in given]
         if not options:
             raise ValueError(f"{name}: the grid needs at least one value")
         if len(set(_as_trained(options))) != len(options):

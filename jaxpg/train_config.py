@@ -15,7 +15,7 @@ import optax
 from jaxpg import envs, losses, policies
 from jaxpg.envs import cartpole
 from jaxpg.types import ArrayLike
-from jaxpg.validation import check_finite, check_int, check_number, check_representable, in_float64
+from jaxpg.validation import check_int, check_number, check_representable, in_float64
 
 # An optimizer of the user's: `learning_rate -> optax.GradientTransformation`.
 OptimizerFactory = Callable[[ArrayLike], optax.GradientTransformation]
@@ -33,9 +33,10 @@ class TrainConfig:
     Attributes:
       iterations: optimizer steps, each on `episodes` fresh episodes of at most `max_steps` steps.
       episodes: episodes played per optimizer step.
-      max_steps: the most steps of an episode; None (the default) is the book's 200 on
-        CartPole, the environment's time limit (`max_steps` of its params) elsewhere, kept as
-        that number (`dataclasses.replace` of `env` keeps it too).
+      max_steps: the most steps of an episode, at most the environment's time limit
+        (`max_steps` of its params); None (the default) is the book's 200 on CartPole (its time
+        limit where shorter), that time limit elsewhere, kept as that number
+        (`dataclasses.replace` of `env` keeps it too).
       hidden: the hidden layer sizes of the default policy network (`policies.PolicyNetwork`),
         used where `policy` is None; `()` is a linear policy.
       activation: the default network's activation, a name of `policies.ACTIVATIONS`.
@@ -109,6 +110,7 @@ class TrainConfig:
         check_optimizer(self.optimizer)
         check_hyperparams(self.learning_rate, self.discount, self.entropy_coef)
         env_params = self.env_params  # raises for an unknown name or unphysical values
+        envs.check_episode_steps(self.max_steps, env_params)
         if self.solved_return is None:
             object.__setattr__(self, "solved_return", envs.solved_return(env_params))
         check_number("solved_return", self.solved_return)
@@ -231,8 +233,9 @@ def check_ranges(randomize: Any, env_params: Any) -> Ranges:
 
     Raises:
       ValueError: naming `randomize` where it is neither, or names a field twice; naming the field
-        for an unknown one, a range whose low is above its high, or bounds that are not finite,
-        not physical or overflow JAX's default float, as their width may.
+        for an unknown one, a range that is not two numbers (not bools or strings), whose low is
+        above its high, or bounds that are not finite, not physical or overflow JAX's default
+        float, as their width may.
     """
     pairs = list(randomize.items()) if isinstance(randomize, Mapping) else randomize
     if not (isinstance(pairs, list | tuple)
@@ -248,11 +251,10 @@ def check_ranges(randomize: Any, env_params: Any) -> Ranges:
             raise ValueError(f"randomize: unknown field {name!r}; allowed: {', '.join(physics)}")
         if name in ranges:
             raise ValueError(f"randomize: {name} is given two ranges; give each field one")
-        try:
-            low, high = (float(bound) for bound in bounds)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name}: expected a range (low, high), got {bounds!r}") from None
-        check_finite(name, (low, high))  # first: NaN is neither above nor below
+        if not isinstance(bounds, list | tuple | np.ndarray) or np.shape(bounds) != (2,):
+            raise ValueError(f"{name}: expected a range (low, high), got {bounds!r}")
+        # Each a number as given, finite (first: NaN is neither above nor below).
+        low, high = (check_number(name, bound) for bound in bounds)
         if not low <= high:
             raise ValueError(f"{name}: the range's low is above its high: ({low}, {high})")
         for bound in (low, high):

@@ -369,7 +369,7 @@ _HUGE_BUDGET = "9" * 400 + "T"  # a float of it is infinite
 @pytest.mark.parametrize("args, word", [
     (["train", "--episodes", "1000000000"], "memory: training 1 run for 150 iterations of "
                                              "1000000000 episodes"),
-    (["train", "--max-steps", "2147483647"], "memory: "),
+    (["train", "--max-steps", "2147483647"], "max_steps: at most 500, the environment's "),
     (["train", "--iterations", "1000000000"], "memory: "),
     (["train", "--hidden", "100000000"], "hidden: at most 4000 units per layer"),
     (["train", "--hidden", ",".join(["4000"] * 64)], "memory: "),  # about 30 GiB

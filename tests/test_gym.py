@@ -1,5 +1,6 @@
 """The Gymnasium adapters against Gymnasium's own CartPoleEnv and CartPoleVectorEnv."""
 
+import functools
 import warnings
 
 import gymnasium
@@ -255,3 +256,6 @@ def test_custom_physics_and_bad_arguments():
         jaxpg_gym.CartPoleVectorEnv(env_params=cartpole.make_params(masspole=np.array([.1, .2])))
     with pytest.raises(ValueError, match="render_mode"):
         jaxpg_gym.CartPoleEnv(render_mode="human")
+    for make in (gymnasium.make, functools.partial(gymnasium.make_vec, num_envs=2)):
+        with pytest.raises(ValueError, match="^sutton_barto_reward: must be True or False"):
+            make("jaxpg/CartPole-v1", sutton_barto_reward="no")  # (not a truthy value as yes)

@@ -205,6 +205,10 @@ def test_a_list_of_settings_trains_each():
     ({"gravity": [float("inf")]}, "gravity: must be finite"),
     ({"length": []}, "length: the grid needs at least one value"),
     ({"length": [1.0, 1.0]}, "length: the grid repeats a value"),
+    # Not numbers, each as given: numpy would make them 1.0 and 2.0 in a list of floats.
+    ({"learning_rate": [0.01, True]}, "learning_rate: must be a number, got True"),
+    ({"length": [np.bool_(True), 0.5]}, "length: must be a number, got np.True_"),
+    ({"length": [0.5, "2"]}, "length: must be a number, got '2'"),
     ([{"length": 1.0}, {"length": 1.0}], "grid: the list repeats a setting"),
     # Apart in float64, one number in the float32 training computes in.
     ({"learning_rate": [0.01, 0.010000000000000002]}, "learning_rate: the grid repeats a value"),

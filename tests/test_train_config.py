@@ -61,6 +61,14 @@ TOO_SMALL = r"must be at least 1\.175e-38 \(the smallest normal float32\)"
     ("randomize", None, "randomize: expected a dict"),
     ("randomize", "length", "randomize: expected a dict"),
     ("randomize", [("length",)], "randomize: expected a dict"),
+    # More steps than the environment's time limit, which would end every episode first.
+    ("max_steps", 501, "max_steps: at most 500, the environment's time limit .*, got 501$"),
+    # Bounds that `float` would take, one by one: "12" as (1, 2), b"12" as (49, 50).
+    ("randomize", {"length": "12"}, "length: expected a range \\(low, high\\), got '12'$"),
+    ("randomize", {"length": b"12"}, "length: expected a range"),
+    ("randomize", {"length": {0.3, 0.6}}, "length: expected a range"),  # in no given order
+    ("randomize", {"length": ("0.25", "2")}, "length: must be a number, got '0.25'$"),
+    ("randomize", {"length": (True, 2)}, "length: must be a number, got True$"),
     ("randomize", [("length", (0.3, 0.6)), ("length", (0.4, 0.5))],
      "randomize: length is given two ranges; give each field one$"),
 ])
@@ -214,3 +222,13 @@ def test_a_policy_or_optimizer_of_the_wrong_kind_is_named_before_compiling(field
     with pytest.raises(ValueError, match=f"^{match}") as error:
         train(config, seed=0, show_progress=False)
     assert "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize(("env", "steps"), [
+    ("CartPole-v1", 200),  # the book's
+    (cartpole.CartPoleParams(max_steps=40), 40),  # a shorter time limit
+    ("CartPole-v0", 200),
+    ("Acrobot-v1", 500),  # the time limit of the others
+])
+def test_episodes_run_by_default_the_books_200_steps_or_the_time_limit(env, steps):
+    assert TrainConfig(env=env).max_steps == steps

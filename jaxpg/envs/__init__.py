@@ -33,6 +33,7 @@ from jaxpg.envs import (
     pendulum,
 )
 from jaxpg.envs.gymnax_style import from_gymnax
+from jaxpg.validation import check_int
 
 MODULES: dict[str, ModuleType] = {
     **{name: cartpole for name in cartpole.PRESETS},
@@ -132,9 +133,22 @@ def is_discrete(module: Any) -> bool:
 
 
 def max_steps(env_params: Any) -> int:
-    """The most steps of a training episode by default: the environment's time limit (the book's
-    200 for CartPole)."""
-    return _BOOK_STEPS if module_of(env_params) is cartpole else int(env_params.max_steps)
+    """The most steps of a training episode by default: the environment's time limit (for
+    CartPole the book's 200, or its time limit where that is shorter)."""
+    limit = int(env_params.max_steps)
+    return min(_BOOK_STEPS, limit) if module_of(env_params) is cartpole else limit
+
+
+def check_episode_steps(max_steps: Any, env_params: Any) -> int:
+    """`max_steps` as an `int`; a ValueError naming it unless it is 1 to the time limit of
+    `env_params`' environment (its `max_steps`), which ends every episode there anyway: a longer
+    `max_steps` would say more steps than any episode plays."""
+    steps = check_int("max_steps", max_steps)
+    limit = int(env_params.max_steps)
+    if steps > limit:
+        raise ValueError(f"max_steps: at most {limit}, the environment's time limit (its params' "
+                         f"max_steps), got {steps}")
+    return steps
 
 
 def solved_return(env_params: Any) -> float:
