@@ -135,7 +135,8 @@ def save(
       The `pathlib.Path` written.
 
     Raises:
-      ValueError: for a `config` that is no `TrainConfig`, `metrics` that are no `Metrics`,
+      ValueError: for an empty `path`, a `config` that is no `TrainConfig`, `metrics` that are no
+        `Metrics`,
         parameters of other shapes than `config`'s network's (or its loss's critic's) or not
         float32 or float64 (which `load` refuses), critic parameters for a loss without a
         critic, or a config field that cannot be saved.
@@ -174,6 +175,8 @@ def _target(path: str | os.PathLike[str], name: str) -> pathlib.Path:
     """The file `save` writes: `path`, or `path/name` for a directory, an existing one or one
     named with a final separator (which `pathlib.Path` would drop)."""
     text = os.fspath(path)
+    if not text:  # (not the working directory)
+        raise ValueError("path: expected a file or a directory, got an empty path")
     separators = tuple(sep for sep in (os.sep, os.altsep) if sep)
     if text.endswith(separators) or pathlib.Path(text).is_dir():
         return pathlib.Path(text) / name
@@ -355,7 +358,7 @@ def _check_params_match(
     if shapes != want:
         raise ValueError(
             f"{where}: parameters do not fit the {'critic' if critic else 'policy'} "
-            f"{_describe(network)}; expected shapes {want}, got {shapes}"
+            f"{type(network).__name__}; expected shapes {want}, got {shapes}"
         )
 
 

@@ -87,11 +87,11 @@ def _bytes(text: str) -> int:
     """`2G`, `512MB`, `1.5GiB` or plain bytes, as a number of bytes (K, M, G, T: powers of 1024)."""
     match = _BYTES.fullmatch(text.strip())
     # Exactly, as a fraction: a float would overflow to infinity on a long number.
-    size = int(fractions.Fraction(match[1]) * _BYTE_UNITS[match[2].upper()]) if match else 0
-    if size < 1:
+    size = fractions.Fraction(match[1]) * _BYTE_UNITS[match[2].upper()] if match else 0
+    if size < 1 or size.denominator != 1:  # (not 1000000.9 bytes cut to 1000000)
         raise argparse.ArgumentTypeError(
-            f"expected a positive size such as 2G, 512M or 1000000, got {text!r}")
-    return size
+            f"expected a positive whole number of bytes such as 2G, 512M or 1000000, got {text!r}")
+    return int(size)
 
 
 def _physics(text: str) -> tuple[float, float] | list[float]:
@@ -423,6 +423,7 @@ def _join_processes(args: argparse.Namespace) -> bool:
     """
     from jaxpg.validation import check_int
 
+    check_int("coordinator_timeout", args.coordinator_timeout, 1, 2**31)  # (given alone too)
     flags = (args.coordinator, args.num_processes, args.process_id)
     if all(flag is None for flag in flags):
         return True
@@ -436,7 +437,6 @@ def _join_processes(args: argparse.Namespace) -> bool:
     check_int("num_processes", args.num_processes)
     if not 0 <= args.process_id < args.num_processes:
         raise ValueError(f"process_id: must be in [0, {args.num_processes}), got {args.process_id}")
-    check_int("coordinator_timeout", args.coordinator_timeout, 1, 2**31)
     if args.process_id > 0:  # JAX would wait, then abort with a C++ dump
         _reach(host.strip("[]"), int(port), args.coordinator_timeout)
     import jax
@@ -505,7 +505,8 @@ def cmd_sweep(args: argparse.Namespace) -> None:
     grid = {"learning_rate": args.lr, "discount": args.discount, "entropy_coef": args.entropy_coef,
             **_physics_settings(args)[0]}
     # Before anything is written, traced or allocated.
-    check_arguments(config, range(args.seeds), grid, args.memory_budget, args.eval_episodes)
+    check_arguments(config, range(args.seeds), grid, args.memory_budget, args.eval_episodes,
+                    args.eval_physics)
     # After the checks: they import scipy, which is slow to import.
     from jaxpg import report, results
     out = (atomic_files.claim if writes_results else atomic_files.check_out_dir)(args.out)

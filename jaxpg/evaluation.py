@@ -22,9 +22,15 @@ from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
 from jaxpg import budget, envs, rng, rollout, sweeps, train_config
 from jaxpg.envs import cartpole
-from jaxpg.policies import init_network, network_policy
+from jaxpg.policies import basic_policy, init_network, network_policy
 from jaxpg.types import Action, Observation, Params, Policy, PRNGKey
-from jaxpg.validation import check_choice, check_finite, check_int, check_representable
+from jaxpg.validation import (
+    check_callback,
+    check_choice,
+    check_finite,
+    check_int,
+    check_representable,
+)
 
 BACKENDS = ("jaxpg", "gymnasium")
 # Steps of episodes (episodes x max_steps) that `evaluate` plays at once in jaxpg, 80 MiB in float32
@@ -213,8 +219,10 @@ def evaluate(
     check_int("episodes", episodes)
     check_int("max_steps", max_steps)
     check_int("seed", seed, 0, 2**32)
+    check_callback("on_chunk", on_chunk, "(episodes played) -> None")
     check_choice("backend", backend, BACKENDS)
     env_params, env_id = resolve_env(env)
+    _check_plays("policy", policy, env_params)
     if backend == "gymnasium":
         if init_states is not None:
             raise ValueError(
@@ -316,6 +324,14 @@ def _cartpole_only(env: Env, name: str) -> tuple[cartpole.CartPoleParams, str]:
     if envs.module_of(env_params) is not cartpole:
         raise ValueError(f"{name}: for CartPole only, got {env_id}")
     return env_params, env_id
+
+
+def _check_plays(name: str, policy: object, env_params: Any) -> None:
+    """A ValueError naming `name` where `policy` is the basic policy and the environment is not
+    CartPole, whose pole's angle it reads (in another task's observation, some other number)."""
+    if policy is basic_policy and envs.module_of(env_params) is not cartpole:
+        raise ValueError(f"{name}: basic_policy plays CartPole (it pushes toward the pole's "
+                         f"lean), got {envs.module_of(env_params).NAME}")
 
 
 def _init_state(init_states: npt.ArrayLike, episodes: int, env: Env) -> cartpole.CartPoleState:
@@ -616,10 +632,12 @@ def robustness(
     check_int("episodes", episodes)
     check_int("max_steps", max_steps)
     check_int("seed", seed, 0, 2**32)
+    check_callback("on_chunk", on_chunk, "(episodes played) -> None")
     config = policies.config if isinstance(policies, sweeps.SweepResult) else None
     if env is None:
         env = config.env if config else "CartPole-v1"
     env_params, _ = resolve_env(env)
+    _check_plays("policies", policies, env_params)
     settings = physics_settings(env_grid, env_params)
     if network is None:
         network = (config or train_config.TrainConfig(env=env_params)).network

@@ -29,7 +29,7 @@ from jaxpg import (
     xla_options,
 )
 from jaxpg.types import Params
-from jaxpg.validation import check_choice, check_int, check_number
+from jaxpg.validation import check_callback, check_choice, check_int, check_number
 
 EVAL_PHYSICS = ("training", "base")  # what `sweep`'s held-out episodes play in
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
@@ -258,23 +258,13 @@ def check_seeds(seeds: Seeds) -> np.ndarray:
     return seeds.astype(np.uint32)
 
 
-def check_on_iteration(on_iteration: OnIteration | None) -> None:
-    """Checks that `on_iteration` is a function or None.
-
-    Raises:
-      ValueError: naming `on_iteration`, for anything else.
-    """
-    if on_iteration is not None and not callable(on_iteration):
-        raise ValueError(f"on_iteration: must be a function (iteration, metrics) -> None or "
-                         f"None, got {type(on_iteration).__name__}")
-
-
 def check_arguments(
     config: train_config.TrainConfig,
     seeds: Seeds,
     grid: Grid = None,
     memory_budget: int | None = None,
     eval_episodes: int = 0,
+    eval_physics: str = "training",
 ) -> tuple[np.ndarray, list[dict[str, float]]]:
     """Checks the arguments of `sweep`, and the memory that its runs need (`budget`).
 
@@ -286,6 +276,7 @@ def check_arguments(
       grid: the grid of settings (`expand_grid`).
       memory_budget: optional bytes of memory one device may use (`budget.check_memory_budget`).
       eval_episodes: N, held-out episodes each run's final policy plays, in [0, 2**20].
+      eval_physics: their physics, one of `EVAL_PHYSICS`; "training" unless N > 0.
 
     Returns:
       (the `[S]` seeds as `check_seeds` gives them, the G settings of `expand_grid`).
@@ -302,6 +293,10 @@ def check_arguments(
     settings = expand_grid(config, grid)
     budget.check_memory_budget(memory_budget)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
+    check_choice("eval_physics", eval_physics, EVAL_PHYSICS)
+    if eval_physics != "training" and not eval_episodes:
+        raise ValueError(f"eval_physics: {eval_physics!r} chooses the physics of held-out "
+                         "episodes; give eval_episodes too")
     runs = num_seeds * len(settings)
     budget.check(config)
     try:
@@ -368,10 +363,10 @@ def sweep(
         or `init_params` not shaped as the policy's parameters, before anything is compiled;
         for a `memory_budget` below one run's need, after compiling.
     """
-    seeds, settings = check_arguments(config, seeds, grid, memory_budget, eval_episodes)
+    seeds, settings = check_arguments(config, seeds, grid, memory_budget, eval_episodes,
+                                      eval_physics)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
-    check_choice("eval_physics", eval_physics, EVAL_PHYSICS)
-    check_on_iteration(on_iteration)
+    check_callback("on_iteration", on_iteration, "(iteration, metrics) -> None")
     if init_params is not None:
         init_params = reinforce.check_init_params(config, init_params)
     if init_critic_params is not None:
@@ -444,7 +439,7 @@ def train(config: train_config.TrainConfig = train_config.TrainConfig(), seed: i
         the policy's parameters; each before anything compiles.
     """
     check_int("seed", seed, 0, 2**32)
-    check_on_iteration(on_iteration)
+    check_callback("on_iteration", on_iteration, "(iteration, metrics) -> None")
     first_run = None if on_iteration is None else (
         lambda i, metrics: on_iteration(i, jax.tree.map(lambda leaf: leaf[0], metrics)))
     result = sweep(config, [seed], show_progress=show_progress, on_iteration=first_run,

@@ -387,11 +387,15 @@ def check_optimizer(name: Any) -> None:
       name: an optax optimizer's name, or a function `learning_rate -> GradientTransformation`.
 
     Raises:
-      ValueError: for a name that optax lacks or whose optimizer does not
-        `steps_on_gradients`, listing the names allowed.
+      ValueError: for an optimizer already made, or a name that optax lacks or whose optimizer
+        does not `steps_on_gradients`, listing the names allowed.
     """
     if callable(name):
         return
+    if hasattr(name, "init") and hasattr(name, "update"):  # an optax optimizer, made
+        raise ValueError("optimizer: expected a name or a function learning_rate -> optimizer "
+                         "(such as lambda lr: optax.adam(lr)), got an optimizer already made, "
+                         "whose learning rate a sweep could not set")
     if name not in OPTIMIZERS or not _trains(name):
         allowed = sorted(filter(_trains, OPTIMIZERS))
         raise ValueError(

@@ -40,6 +40,14 @@ def _int_range(minimum: int, maximum: int | None) -> str:
         minimum, f"an integer of at least {minimum}")
 
 
+def check_callback(name: str, callback: Any, signature: str) -> None:
+    """A ValueError naming `name` unless `callback` is None or a function (`signature` says which,
+    as the message does)."""
+    if callback is not None and not callable(callback):
+        raise ValueError(f"{name}: must be a function {signature} or None, got "
+                         f"{type(callback).__name__}")
+
+
 def check_number(name: str, value: Any) -> float:
     """`value` as a float; a ValueError naming `name` unless it is one finite real number.
 

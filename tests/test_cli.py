@@ -379,6 +379,8 @@ _HUGE_BUDGET = "9" * 400 + "T"  # a float of it is infinite
     (["train", "--solved-return", "nan"], "solved_return: must be finite"),
     (["train", "--optimizer", "lbfgs"], "optimizer: cannot train with 'lbfgs'"),
     (["sweep", "--lr", "0.01,0.01"], "learning_rate: the grid repeats a value"),
+    (["sweep", "--eval-physics", "base"], "eval_physics: 'base' chooses the physics of held-out"),
+    (["sweep", "--coordinator-timeout", "0"], "coordinator_timeout: must be an integer in [1, "),
     (["train", "--out", "/proc/x"], "out: cannot write in /proc"),
     (["reproduce", "--seed=-1"], "seed: must be an integer"),
     (["render", "--out", "cartpole.txt"], "out: must end with .gif or .mp4"),
@@ -518,3 +520,19 @@ def test_evaluate_refuses_an_out_that_holds_the_policies_evaluated(sweep_folder,
     lines = capsys.readouterr().err.splitlines()
     assert status == 2 and len(lines) == 1 and "the policies evaluated, which writing" in lines[0]
     assert {p.name: p.read_bytes() for p in sweep_folder.iterdir()} == before
+
+
+@pytest.mark.parametrize(("text", "size"), [
+    ("2G", 2 * 2**30), ("512MB", 512 * 2**20), ("1.5GiB", 3 * 2**29), ("1000000", 10**6)])
+def test_memory_sizes_are_read_exactly(text, size):
+    assert cli._bytes(text) == size
+
+
+@pytest.mark.parametrize("text", ["1000000.9", "0", "0.5", "2X", ""])
+def test_memory_sizes_that_are_no_whole_positive_number_of_bytes_are_refused(text, capsys):
+    with pytest.raises(SystemExit) as exit_:  # (the parser's own refusal)
+        cli.run_command(["sweep", "--memory-budget", text])
+    assert exit_.value.code == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()[-1:]
+    assert line.endswith(f"expected a positive whole number of bytes such as 2G, 512M or "
+                         f"1000000, got {text!r}")

@@ -1,12 +1,16 @@
 """The Python API refuses values that would answer wrongly without a word, in one line naming the
 argument, before anything compiles."""
 
+import gymnasium
+import jax
 import numpy as np
+import optax
 import pytest
 from conftest import xla_compiles
 
 from jaxpg import (
     TrainConfig,
+    checkpoint,
     envs,
     evaluate,
     evaluation,
@@ -51,12 +55,36 @@ def test_physics_that_float32_cannot_hold_are_refused_on_every_task(env, field, 
     assert not compiled
 
 
+_BOOK_PARAMS = policies.init_network(jax.random.PRNGKey(0), TrainConfig().network, 4)
+
+
 @pytest.mark.parametrize("call, match", [
     (lambda: report.compare(["unread"], confidence="0.9"), "^confidence: must be a number"),
     (lambda: report.compare("unread"), "^sweeps: expected a list of sweep folders"),
     (lambda: results.save_sweep(None, "unwritten"), "^result: expected what jaxpg.sweep returns"),
     (lambda: evaluation.robustness(policies.basic_policy, network="mlp"),
      "^network: expected the policy's flax module"),
+    # Before any episode is played, not a TypeError once the first chunk has.
+    (lambda: evaluation.evaluate(policies.basic_policy, episodes=2, on_chunk=3),
+     "^on_chunk: must be a function .* or None, got int$"),
+    (lambda: evaluation.robustness(policies.basic_policy, episodes=2, on_chunk=3),
+     "^on_chunk: must be a function"),
+    # The basic policy reads CartPole's pole angle: in another task's observation, another number.
+    (lambda: evaluate(policies.basic_policy, episodes=3, env="Acrobot-v1"),
+     "^policy: basic_policy plays CartPole .*, got Acrobot-v1$"),
+    (lambda: evaluation.robustness(policies.basic_policy, episodes=2, env="Pendulum-v1"),
+     "^policies: basic_policy plays CartPole"),
+    (lambda: TrainConfig(optimizer=optax.adam(0.1)),
+     "^optimizer: expected a name or a function learning_rate -> optimizer"),
+    (lambda: checkpoint.save("", _BOOK_PARAMS, TrainConfig()),  # not ./policy.msgpack
+     "^path: expected a file or a directory, got an empty path$"),
+    (lambda: checkpoint.save("p.msgpack", {}, TrainConfig()),
+     r"^policy_params: parameters do not fit the policy PolicyNetwork; expected shapes \{"),
+    (lambda: gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=2, max_episode_steps=0),
+     "^max_episode_steps: must be a positive integer, got 0$"),
+    # An argument with nothing to act on: no held-out episodes to play in the base physics.
+    (lambda: sweep(TrainConfig(iterations=1), [0], eval_physics="base"),
+     "^eval_physics: 'base' chooses the physics of held-out episodes; give eval_episodes too$"),
 ])
 def test_arguments_of_the_wrong_kind_are_named_in_one_line(call, match, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)

@@ -292,6 +292,7 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
         _check_render_mode(render_mode, self.metadata)
         env_params = _make_params(env_params, sutton_barto_reward)
         if max_episode_steps is not None:
+            check_int("max_episode_steps", max_episode_steps)
             env_params = env_params.replace(max_steps=max_episode_steps)
             cartpole.check_params(env_params)
         self.env_params = env_params
