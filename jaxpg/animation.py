@@ -111,7 +111,8 @@ def check_animation_path(path: StrPath, name: str = "path") -> pathlib.Path:
 
     Raises:
       ValueError: naming `name` unless `path` ends with .gif or .mp4, can be a file's name
-        (`atomic_files.check_path_names`) and a file can be created in its folder, and is not a
+        (`atomic_files.check_path_names`) and a file can be created in its folder, outside
+        folders of jaxpg's results (`atomic_files.check_outside_results`), and is not a
         directory.
       ImportError: for MP4 without imageio-ffmpeg.
     """
@@ -128,5 +129,6 @@ def check_animation_path(path: StrPath, name: str = "path") -> pathlib.Path:
             ) from None
     if path.is_dir():
         raise ValueError(f"{name}: {path} is a directory; give the animation's file")
+    atomic_files.check_outside_results(path, name)
     atomic_files.check_writable(path.parent, name)
     return path

@@ -109,6 +109,23 @@ def check_not_replacing(out: StrPath, source: StrPath, what: str, written: str) 
                          f"writing {written} would replace; choose another folder")
 
 
+# The files that mark a folder as one of jaxpg's results, one pair per command that writes one
+# (train, sweep, evaluate, compare). Nothing else is written inside such a folder: writing it
+# again replaces it whole, and a folder holding directories is refused as an output.
+RESULT_FILES = (("policy.msgpack", "metrics.json"), ("policies.msgpack", "summary.json"),
+                ("robustness.json", "robustness.csv"), ("comparison.json", "improvement.png"))
+
+
+def check_outside_results(path: StrPath, name: str) -> None:
+    """Raises a ValueError naming `name` where a folder above `path` holds jaxpg's results
+    (`RESULT_FILES`), which writing them again would lose `path` with."""
+    for parent in pathlib.Path(path).resolve().parents:
+        if any(all((parent / file).is_file() for file in files) for files in RESULT_FILES):
+            raise ValueError(f"{name}: {os.fspath(path)} lies inside {parent}, a folder of "
+                             "jaxpg's results, which is replaced whole when written again; give "
+                             "a place outside it")
+
+
 def check_path_names(path: StrPath, name: str) -> pathlib.Path:
     """`path` as a `pathlib.Path`, checked that a file system can name it.
 
@@ -138,8 +155,9 @@ def check_path_names(path: StrPath, name: str) -> pathlib.Path:
 def check_out_dir(out: StrPath) -> pathlib.Path:
     """Checks that the output directory `out` can hold jaxpg's results; creates nothing.
 
-    Refused: an empty path, one that no file system can name (`check_path_names`), an existing
-    file (or a file among its parents), the working directory
+    Refused: an empty path, one that no file system can name (`check_path_names`), one inside
+    another folder of results (`check_outside_results`), an existing file (or a file among its
+    parents), the working directory
     or a directory above it, and a directory holding other directories, which jaxpg never writes
     (its results are files only).
 
@@ -155,6 +173,7 @@ def check_out_dir(out: StrPath) -> pathlib.Path:
     if not os.fspath(out):
         raise ValueError("out: expected a directory, got an empty path")
     out = check_path_names(out, "out")
+    check_outside_results(out, "out")
     if out.exists() and not out.is_dir():
         raise ValueError(f"out: {out} is a file; give a directory (it is created if missing)")
     for parent in out.parents:

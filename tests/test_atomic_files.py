@@ -220,3 +220,20 @@ def test_a_folder_that_cannot_be_written_is_refused_when_claimed(folder):
         atomic_files.claim(folder)
     with pytest.raises(ValueError, match="^path: cannot write in /proc"):
         atomic_files.check_writable("/proc", "path")
+
+
+@pytest.mark.parametrize("files", atomic_files.RESULT_FILES)
+def test_no_result_is_written_inside_another(tmp_path, files):
+    for name in files:
+        (tmp_path / name).write_text("a result")
+    for inside in (tmp_path / "sub", tmp_path / "a" / "b"):
+        with pytest.raises(ValueError, match=f"^out: .* lies inside {tmp_path}, a folder of "
+                                             "jaxpg's results"):
+            atomic_files.claim(inside)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(files)  # nothing created
+    atomic_files.check_out_dir(tmp_path)  # the folder itself: written again, replaced whole
+
+
+def test_a_folder_holding_one_file_of_a_kind_of_results_is_no_results_folder(tmp_path):
+    (tmp_path / "metrics.json").write_text("a project's own")  # not beside a policy
+    atomic_files.check_out_dir(tmp_path / "runs")
