@@ -304,6 +304,18 @@ def _require_objects(fields: object, objects: Mapping[str, Any]) -> None:
             raise ValueError(f"{name}: the checkpoint was trained with {expected}, got {got}")
 
 
+def check_config_dict(fields: Any) -> None:
+    """Raises a ValueError unless `fields` is a config entry that `config_from_dict` takes, each
+    user's object (saved as its description, `_describe`) aside: a `TrainConfig`'s fields."""
+    if not isinstance(fields, Mapping):
+        raise ValueError(f"expected the config's fields, got {type(fields).__name__}")
+    try:
+        config_from_dict({name: value for name, value in fields.items()
+                          if not (name in _OBJECTS and isinstance(value, dict))})
+    except (TypeError, KeyError) as error:  # a field of the wrong kind, deep down
+        raise ValueError(f"{type(error).__name__}: {error}") from None
+
+
 def config_from_dict(
     fields: Mapping[str, Any], objects: Mapping[str, Any] | None = None
 ) -> train_config.TrainConfig:
@@ -442,7 +454,7 @@ def load(
     try:
         version = str(fields["jaxpg_version"])
         config = config_from_dict(fields["config"], objects)
-        grid, seeds = _read_runs(fields.get("runs"))
+        grid, seeds = _read_runs(fields.get("runs"), config)
         lead = () if grid is None else (len(grid), len(cast(np.ndarray, seeds)))
         policy_params = _read_params(fields["policy_params"], config, "policy_params", lead)
         critic_params = None if fields.get("critic_params") is None else _read_params(
@@ -491,19 +503,25 @@ def _unseal(payload: dict[Any, Any], path: pathlib.Path) -> dict[Any, Any]:
     return _unpack(content, path)
 
 
-def _read_runs(runs: Any) -> tuple[list[dict[str, float]] | None, np.ndarray | None]:
+def _read_runs(runs: Any, config: train_config.TrainConfig
+               ) -> tuple[list[dict[str, float]] | None, np.ndarray | None]:
     """A sweep's `runs` entry as (its G settings, its `[S]` int64 seeds); (None, None) for none.
 
     Raises:
-      ValueError: naming the entry, for a setting's value that is not a finite number or a seed
-        out of [0, 2**32), which a sweep's seeds are.
+      ValueError: naming the entry, for a setting's value that is not a finite number, settings
+        that a sweep of `config` would not train (`sweeps.expand_grid`: an unknown field, a
+        repeated setting, a value out of range), or seeds that are not distinct, in [0, 2**32).
     """
+    from jaxpg import sweeps
+
     if runs is None:
         return None, None
     grid = [{name: check_number(f"runs.grid[{g}].{name}", value)
              for name, value in dict(setting).items()} for g, setting in enumerate(runs["grid"])]
     seeds = np.array([check_int("runs.seeds", seed, 0, 2**32) for seed in runs["seeds"]],
                      np.int64)
+    sweeps.expand_grid(config, grid)
+    sweeps.check_seeds(seeds)
     return grid, seeds
 
 

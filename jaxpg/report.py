@@ -198,6 +198,10 @@ def _read_summary(path: pathlib.Path, folder: str | os.PathLike[str]) -> dict[st
         raise ValueError(f"{folder}: written by another version of jaxpg ({found}, this version "
                          f"reads {SWEEP_FORMAT!r}); run the sweep again")
     _number(summary["config"].get("solved_return"), f"{file}: config.solved_return")
+    try:
+        checkpoint.check_config_dict(summary["config"])
+    except ValueError as error:
+        raise ValueError(f"{file}: damaged config ({error})") from None
     return summary
 
 

@@ -19,7 +19,7 @@ def test_the_machine_has_memory():
 @pytest.mark.parametrize("field, larger", [("iterations", 1500), ("episodes", 100),
                                            ("max_steps", 2000), ("hidden", (50,))])
 def test_the_estimate_grows_with_every_size(field, larger):
-    config = TrainConfig()
+    config = TrainConfig(env=cartpole.CartPoleParams(max_steps=2000))  # (a time limit of 2000)
     bigger = dataclasses.replace(config, **{field: larger})
     assert budget.needed_bytes(bigger) > budget.needed_bytes(config)
     assert budget.needed_bytes(config, 4096) > budget.needed_bytes(config, 64)
@@ -50,7 +50,8 @@ def test_sizes_beyond_the_machine_are_refused_in_one_line(changes, runs, asked):
 
 def test_train_refuses_them_before_anything_compiles():
     with xla_compiles() as compiled, pytest.raises(ValueError, match="^memory: "):
-        train(TrainConfig(max_steps=2**31 - 1), show_progress=False)
+        train(TrainConfig(env=cartpole.CartPoleParams(max_steps=2**31 - 1), max_steps=2**31 - 1),
+              show_progress=False)
     assert not compiled
 
 

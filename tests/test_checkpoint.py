@@ -296,6 +296,22 @@ def test_an_optimizer_of_functools_partial_is_saved_and_checked_by_its_type(tmp_
         checkpoint.load(path, optimizer=optax.sgd)
 
 
+@pytest.mark.parametrize(("grid", "seeds", "problem"), [
+    ([{"foo": 1.0}], [0], r"grid: unknown field\(s\) foo of CartPole-v1"),
+    ([{"learning_rate": 0.01}], [0, 0], "seeds: must be distinct"),
+    ([{"learning_rate": 0.01}, {"learning_rate": 0.01}], [0], "grid: the list repeats a setting"),
+    ([{"discount": 2.0}], [0], r"discount: must be in \(0, 1\]"),
+])
+def test_runs_no_sweep_would_train_make_a_damaged_checkpoint(tmp_path, grid, seeds, problem):
+    params = jax.tree.map(lambda leaf: np.stack([[leaf] * len(seeds)] * len(grid)),
+                          _params(CONFIG))  # [G, S, ...], sealed with its checksum
+    path = tmp_path / "policies.msgpack"
+    path.write_bytes(_payload(policy_params=params, runs={"grid": grid, "seeds": seeds}))
+    with pytest.raises(ValueError, match=f"^{path}: damaged jaxpg checkpoint \\(ValueError: "
+                                         f"{problem}"):
+        checkpoint.load(path)
+
+
 @pytest.mark.parametrize("seed", [2**64 - 1, 2**32, -1])
 def test_seeds_out_of_range_are_a_one_line_value_error(tmp_path, seed):
     params = jax.tree.map(lambda leaf: np.stack([[leaf]]), _params(CONFIG))  # [1, 1, ...]
@@ -354,7 +370,8 @@ def test_a_sweeps_run_takes_its_physics_and_bad_runs_are_refused(tmp_path):
                               0, 0)
     with pytest.raises(ValueError, match="policy_params: parameters do not fit"):
         checkpoint.save(tmp_path / "q.msgpack", params, CONFIG, runs={"grid": grid, "seeds": [4]})
-    path.write_bytes(_payload(policy_params=params, runs={"grid": grid * 2, "seeds": [4, 7]}))
+    two = [*grid, {**grid[0], "length": 1.5}]  # two settings, parameters of one
+    path.write_bytes(_payload(policy_params=params, runs={"grid": two, "seeds": [4, 7]}))
     with pytest.raises(ValueError, match="damaged.*do not fit"):
         checkpoint.load(path)
 

@@ -137,6 +137,17 @@ DAMAGED = {
     "no solved_return": ("summary.json", lambda f: _edit_summary(
         f, lambda s: s["config"].pop("solved_return")),
         "config.solved_return: must be a finite number, got null"),
+    # The config is read as a TrainConfig would take it: a report labels runs by it.
+    "NaN learning rate": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["config"].update(learning_rate=float("nan"))),
+        "damaged config (learning_rate: must be finite, got NaN or infinity)"),
+    "iterations as words": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["config"].update(iterations="lots")),
+        "damaged config (iterations: must be a positive integer, got 'lots')"),
+    "unknown environment": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["config"].update(env=["x", "x", "x"])), "damaged config (env: expected"),
+    "unknown field": ("summary.json", lambda f: _edit_summary(
+        f, lambda s: s["config"].update(frob=1)), "damaged config (unknown config field(s) frob)"),
     "nested 100000 deep": ("summary.json", lambda f: (f / "summary.json").write_text(
         _nested(100_000)), "not valid JSON (nested too deeply)"),
     "not UTF-8": ("summary.json", lambda f: (f / "summary.json").write_bytes(b'{"\xff": 1}'),
