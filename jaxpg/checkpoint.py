@@ -486,7 +486,8 @@ def _unpack(data: bytes, path: pathlib.Path) -> dict[Any, Any]:
     try:
         payload = serialization.msgpack_restore(data)
     except Exception as e:  # msgpack raises several unrelated types on bad input
-        raise ValueError(f"{path}: not a jaxpg checkpoint (unreadable msgpack: {e})") from None
+        reason = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__  # (some say nothing)
+        raise ValueError(f"{path}: not a jaxpg checkpoint (unreadable msgpack, {reason})") from None
     if not isinstance(payload, dict):
         raise ValueError(f"{path}: not a jaxpg checkpoint (no msgpack map)")
     return payload

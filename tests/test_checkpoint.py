@@ -149,9 +149,11 @@ def _payload(version=checkpoint.FORMAT_VERSION, **changes):
         (lambda: serialization.msgpack_serialize([checkpoint.FORMAT]), "no msgpack map"),
         (lambda: _payload(sha256=hashlib.sha256(b"other").hexdigest()), "does not match"),
         (lambda: _payload(sha256=None), "its content or sha256 is missing"),
+        # msgpack's own error says nothing here: its name does.
+        (lambda: b"\x91" * 100_000 + b"\xc0", r"\(unreadable msgpack, StackError\)$"),
     ],
     ids=["truncated", "random", "json", "foreign-msgpack", "newer", "mismatch", "bad-config",
-         "array", "other-checksum", "no-checksum"],
+         "array", "other-checksum", "no-checksum", "nested"],
 )
 def test_bad_files_raise_a_value_error_naming_the_path(tmp_path, content, problem):
     path = tmp_path / "policy.msgpack"

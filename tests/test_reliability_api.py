@@ -82,6 +82,8 @@ _BOOK_PARAMS = policies.init_network(jax.random.PRNGKey(0), TrainConfig().networ
      r"^policy_params: parameters do not fit the policy PolicyNetwork; expected shapes \{"),
     (lambda: gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=2, max_episode_steps=0),
      "^max_episode_steps: must be a positive integer, got 0$"),
+    (lambda: gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=2**40),  # 8 TiB of its spaces
+     "^num_envs: 1099511627776 environments need more memory than this machine has$"),
     # An argument with nothing to act on: no held-out episodes to play in the base physics.
     (lambda: sweep(TrainConfig(iterations=1), [0], eval_physics="base"),
      "^eval_physics: 'base' chooses the physics of held-out episodes; give eval_episodes too$"),

@@ -285,8 +285,8 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
           env_params: `CartPoleParams` for other physics; CartPole-v1's by default.
 
         Raises:
-          ValueError: for a `num_envs` below 1, an unknown render mode or invalid `env_params`
-            (a `max_episode_steps` below 1 included).
+          ValueError: for a `num_envs` below 1 or beyond the machine's memory, an unknown render
+            mode or invalid `env_params` (a `max_episode_steps` below 1 included).
         """
         check_int("num_envs", num_envs)
         _check_render_mode(render_mode, self.metadata)
@@ -302,9 +302,13 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
         self.max_episode_steps = int(env_params.max_steps)
         self.render_mode = render_mode
         self.single_action_space = spaces.Discrete(2)
-        self.action_space = batch_space(self.single_action_space, num_envs)
         self.single_observation_space = observation_space(env_params)
-        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        try:  # (Gymnasium's spaces hold arrays of N entries)
+            self.action_space = batch_space(self.single_action_space, num_envs)
+            self.observation_space = batch_space(self.single_observation_space, num_envs)
+        except MemoryError:
+            raise ValueError(f"num_envs: {num_envs} environments need more memory than this "
+                             "machine has") from None
         self._values: HostArray | None = None  # [4, N] float64
         self._time: HostArray | None = None  # [N] steps taken in each episode
         self._prev_done: HostArray | None = None  # [N] whether each resets at its next step
