@@ -77,5 +77,5 @@ def test_ci_runs_the_smoke_then_the_whole_suite_last():
     lines = [line for line in (CI / "run").read_text().splitlines()
              if line.strip() and not line.startswith("#")]
     assert "bash .ci/smoke || smoke=$?" in lines
-    assert lines.index("bash .ci/smoke || smoke=$?") < lines.index("python -m pytest -q")
-    assert lines[-2:] == ["python -m pytest -q", 'exit "$smoke"']
+    assert lines.index("bash .ci/smoke || smoke=$?") < lines.index("python -m pytest -q -n auto")
+    assert lines[-2:] == ["python -m pytest -q -n auto", 'exit "$smoke"']

@@ -76,8 +76,8 @@ def _wait_for(process, seconds):
         time.sleep(0.005)
 
 
-def _interrupted(args, delay, tmp_path, command=(sys.executable, "-m", "jaxpg.cli")):
-    """Runs `COMMAND ARGS` (by default `python -m jaxpg.cli ARGS`), sends SIGINT once it has run
+def _interrupted(args, delay, tmp_path, command=(sys.executable, "-m", "jaxpg")):
+    """Runs `COMMAND ARGS` (by default `python -m jaxpg ARGS`), sends SIGINT once it has run
     for `delay` seconds (`_wait_for`): (status, seconds from the signal to the end, stderr)."""
     process = subprocess.Popen([*command, *args], cwd=tmp_path,
                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
