@@ -75,11 +75,12 @@ def temporary_name(name: str, tag: str) -> str:
       The entry's name.
     """
     room = max(NAME_MAX - len(os.fsencode(tag)) - 2, 0)
-    kept = 0
-    for end in range(1, len(name) + 1):
-        if len(os.fsencode(name[:end])) > room:
+    size = kept = 0
+    for char in name:  # (a character's bytes do not depend on its neighbours)
+        size += len(os.fsencode(char))
+        if size > room:
             break
-        kept = end
+        kept += 1
     return f".{name[:kept]}.{tag}"
 
 
