@@ -60,8 +60,13 @@ LANES = 16  # floats in a vector of AVX-512, two of AVX2
 
 
 def played_episodes(num_episodes: int, lanes: int) -> int:
-    """How many episodes `rollout(..., lanes=lanes)` plays: a multiple of `lanes`."""
-    return -(-num_episodes // lanes) * lanes
+    """How many episodes `rollout(..., lanes=lanes)` plays: a multiple of `lanes`, at least two.
+
+    One episode is played twice: XLA drops an axis of one entry and compiles the physics' and the
+    policy's multiplications and additions into FMAs otherwise than beside other episodes, so a
+    run played one episode in a block otherwise than alone.
+    """
+    return max(-(-num_episodes // lanes) * lanes, 2)
 
 
 def reset_batch(key: PRNGKey, num: int, env_params: Any, repeat_to: int | None = None
