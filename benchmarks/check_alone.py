@@ -13,6 +13,7 @@ compiled apart, and XLA can round them differently (see `jaxpg.xla_options`): th
     python benchmarks/check_alone.py                 # seeds 0 to 63; about 20 s
     python benchmarks/check_alone.py --seeds 4 --iterations 10
     python benchmarks/check_alone.py --variant baseline   # a config of the other path
+    XLA_FLAGS=--xla_cpu_max_isa=AVX2 python benchmarks/check_alone.py   # as on an AVX2 machine
 
 Exits with status 1 when some seed differs.
 """
