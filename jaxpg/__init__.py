@@ -83,7 +83,8 @@ def _register_ids(gymnasium: ModuleType) -> None:
 
     Each has the time limit and reward threshold of Gymnasium's id of the same name, and jaxpg's
     adapters as entry points (`jaxpg.envs.gym`'s for CartPole,
-    `jaxpg.envs.adapters.ClassicControlEnv` for the others, with the task's name as `env_params`),
+    `jaxpg.envs.adapters.ClassicControlEnv` for the others, with the task's name as `env_params`
+    and `task`, so that `env_params` given to `gymnasium.make` must be that task's),
     which `gymnasium.make` and `make_vec` import (JAX with them) when first called.
 
     Args:
@@ -102,7 +103,7 @@ def _register_ids(gymnasium: ModuleType) -> None:
             vector_entry_point="jaxpg.envs.gym:CartPoleVectorEnv" if cartpole else None,
             max_episode_steps=theirs.max_episode_steps,
             reward_threshold=theirs.reward_threshold,
-            kwargs={} if cartpole else {"env_params": name},
+            kwargs={} if cartpole else {"env_params": name, "task": name},
         )
 
 

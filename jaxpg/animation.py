@@ -113,7 +113,7 @@ def check_animation_path(path: StrPath, name: str = "path") -> pathlib.Path:
       ValueError: naming `name` unless `path` ends with .gif or .mp4, can be a file's name
         (`atomic_files.check_path_names`) and a file can be created in its folder, outside
         folders of jaxpg's results (`atomic_files.check_outside_results`), and is not a
-        directory.
+        directory or anything else than a regular file (`atomic_files.check_replaceable`).
       ImportError: for MP4 without imageio-ffmpeg.
     """
     path = atomic_files.check_path_names(path, name)
@@ -129,6 +129,7 @@ def check_animation_path(path: StrPath, name: str = "path") -> pathlib.Path:
             ) from None
     if path.is_dir():
         raise ValueError(f"{name}: {path} is a directory; give the animation's file")
+    atomic_files.check_replaceable(path, name)
     atomic_files.check_outside_results(path, name)
     atomic_files.check_writable(path.parent, name)
     return path

@@ -39,6 +39,7 @@ import os
 import pathlib
 import re
 import shutil
+import stat
 import sys
 import tempfile
 import threading
@@ -447,6 +448,38 @@ def write_csv(path: StrPath, columns: Mapping[str, npt.ArrayLike]) -> None:
 # --- Atomic writes -------------------------------------------------------------------------------
 
 
+_KINDS = ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"),
+          (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+          (stat.S_ISSOCK, "a socket"))
+
+
+def file_kind(mode: int) -> str:
+    """What a file of `mode` (`os.stat`'s `st_mode`) is, in words: "a FIFO", "a folder", ..."""
+    return next((name for test, name in _KINDS if test(mode)), "no file")
+
+
+def check_replaceable(path: StrPath, name: str) -> None:
+    """Checks that writing the file `path` (`atomic_path`) replaces at most a regular file.
+
+    A rename onto a device, a FIFO or a socket would replace it with a file (`/dev/null`, had it
+    been given); onto a folder, it fails only once the content is written.
+
+    Args:
+      path: the file to write; a link is judged by what it points to.
+      name: the name of the argument that gave it, which the message starts with.
+
+    Raises:
+      ValueError: naming `name`, where `path` exists as something else than a regular file.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return  # a new file (or a path that the write itself refuses)
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"{name}: {os.fspath(path)} is {file_kind(mode)}, not a regular file; "
+                         "give a file's path (it is created if missing)")
+
+
 @contextlib.contextmanager
 def atomic_path(path: StrPath) -> Iterator[pathlib.Path]:
     """Yields a temporary path beside `path`; on success, moves the file written there onto `path`.
@@ -458,11 +491,16 @@ def atomic_path(path: StrPath) -> Iterator[pathlib.Path]:
     `path` is left as it was.
 
     Args:
-      path: the file to (over)write.
+      path: the file to (over)write: a regular file, or a new one.
 
     Yields:
       A `pathlib.Path` that does not yet hold any content; write the whole file there.
+
+    Raises:
+      ValueError: naming `path`, where it exists as something else than a regular file
+        (`check_replaceable`), before anything is written.
     """
+    check_replaceable(path, "path")
     path = pathlib.Path(path)
     tmp = path.with_name(temporary_name(path.name, f"{_unique()}.tmp{path.suffix}"))
     # Created here (honouring the umask, unlike mkstemp's 0600) so the name is ours alone.

@@ -135,8 +135,9 @@ def save(
       The `pathlib.Path` written.
 
     Raises:
-      ValueError: for an empty `path`, a `config` that is no `TrainConfig`, `metrics` that are no
-        `Metrics`,
+      ValueError: for an empty `path`, or one of something else than a regular file (a device, a
+        FIFO: `atomic_files.check_replaceable`), a `config` that is no `TrainConfig`, `metrics`
+        that are no `Metrics`,
         parameters of other shapes than `config`'s network's (or its loss's critic's) or not
         float32 or float64 (which `load` refuses), critic parameters for a loss without a
         critic, or a config field that cannot be saved.
@@ -174,13 +175,22 @@ def _state_dict(params: Params) -> dict[str, Any]:
 def _target(path: str | os.PathLike[str], name: str) -> pathlib.Path:
     """The file `save` writes: `path`, or `path/name` for a directory, an existing one or one
     named with a final separator (which `pathlib.Path` would drop)."""
-    text = os.fspath(path)
-    if not text:  # (not the working directory)
-        raise ValueError("path: expected a file or a directory, got an empty path")
+    text = _path_text(path)
     separators = tuple(sep for sep in (os.sep, os.altsep) if sep)
     if text.endswith(separators) or pathlib.Path(text).is_dir():
         return pathlib.Path(text) / name
     return pathlib.Path(text)
+
+
+def _path_text(path: Any) -> str:
+    """`path` as text; a ValueError naming `path` unless it is a non-empty `str` or
+    `os.PathLike` of one (an empty one would name the working directory)."""
+    text = os.fspath(path) if isinstance(path, str | os.PathLike) else None
+    if not isinstance(text, str):
+        raise ValueError(f"path: expected a file or a directory, got {type(path).__name__}")
+    if not text:
+        raise ValueError("path: expected a file or a directory, got an empty path")
+    return text
 
 
 def save_sweep(
@@ -389,8 +399,10 @@ def resolve(path: str | pathlib.Path) -> pathlib.Path:
 
     Raises:
       FileNotFoundError: there is no such file.
+      ValueError: naming `path`, for an empty path (not the working directory) or one that is
+        no `str` or `os.PathLike`.
     """
-    path = pathlib.Path(path)
+    path = pathlib.Path(_path_text(path))
     if path.is_dir():
         path = path / (SWEEP_FILENAME if (path / SWEEP_FILENAME).exists()
                        and not (path / FILENAME).exists() else FILENAME)
@@ -424,10 +436,11 @@ def load(
 
     Raises:
       FileNotFoundError: there is no such file.
-      ValueError: the file is no regular file, truncated, damaged (its content does not match
-        its checksum), not a jaxpg checkpoint, from a newer format version, trained with another
-        class or function than the one given, or holds weights or metrics that are not float32
-        or float64 arrays, or seeds out of [0, 2**32); the message names the path and the field.
+      ValueError: `path` is empty or no path (`resolve`); the file is no regular file, truncated,
+        damaged (its content does not match its checksum), not a jaxpg checkpoint, from a newer
+        format version, trained with another class or function than the one given, or holds
+        weights or metrics that are not float32 or float64 arrays, or seeds out of [0, 2**32);
+        the message names the path and the field.
 
     Warns:
       RuntimeWarning: naming the path, where the weights of a run hold NaN or infinity (a

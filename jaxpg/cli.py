@@ -431,7 +431,8 @@ def _join_processes(args: argparse.Namespace) -> bool:
         raise ValueError(
             "coordinator: give --coordinator, --num-processes and --process-id together, or none")
     host, _, port = args.coordinator.rpartition(":")
-    if not host or not port.isdigit() or not 0 < int(port) < 2**16:
+    # ASCII digits alone: int() reads others too ("١٢٣٤"), which JAX's server cannot bind.
+    if not host or not (port.isascii() and port.isdigit()) or not 0 < int(port) < 2**16:
         raise ValueError(f"coordinator: expected HOST:PORT with PORT in [1, 65535], "
                          f"got {args.coordinator!r}")
     check_int("num_processes", args.num_processes)

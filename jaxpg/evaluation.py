@@ -30,6 +30,7 @@ from jaxpg.validation import (
     check_finite,
     check_int,
     check_representable,
+    shown,
 )
 
 BACKENDS = ("jaxpg", "gymnasium")
@@ -215,7 +216,7 @@ def evaluate(
         environment does not have.
     """
     if not callable(policy):
-        raise ValueError(f"policy: must be a callable (obs, u) -> action, got {policy!r}")
+        raise ValueError(f"policy: must be a callable (obs, u) -> action, got {shown(policy)}")
     check_int("episodes", episodes)
     check_int("max_steps", max_steps)
     check_int("seed", seed, 0, 2**32)

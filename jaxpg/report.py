@@ -23,7 +23,7 @@ import numpy as np
 from jaxpg import atomic_files, checkpoint, plots, safe_read, stats
 from jaxpg.envs import cartpole
 from jaxpg.sweeps import SOLVED_WINDOW, SweepResult
-from jaxpg.validation import check_finite, check_int, check_number
+from jaxpg.validation import check_finite, check_int, check_number, check_representable
 
 # summary.json's "format": the folders this version writes and reads.
 SWEEP_FORMAT = "jaxpg-sweep-1"
@@ -111,8 +111,8 @@ def load_sweep(folder: str | os.PathLike[str]) -> Sweep:
       ValueError: naming the folder or its file, for a missing or empty folder, one written by
         another version of jaxpg or by something else, or a file that is no regular file, is
         larger than its bound, damaged, or holds other than a sweep's: a grid of G settings of
-        numbers (a learning rate and a discount each), finite mean returns `[G, S, I]` and,
-        optionally, held-out returns `[G, S, N]`.
+        numbers (a learning rate and a discount each), mean returns `[G, S, I]` and, optionally,
+        held-out returns `[G, S, N]`, each finite and within float32's range.
     """
     path = pathlib.Path(folder)
     if not path.is_dir():
@@ -138,15 +138,14 @@ def from_result(result: SweepResult, name: str) -> Sweep:
 
     Raises:
       ValueError: naming `name`, for a result without its config, or with mean returns or
-        held-out returns that are empty, misshapen or not finite.
+        held-out returns that are empty, misshapen, not finite or beyond float32's range.
     """
     if result.config is None:
         raise ValueError(f"{name}: a SweepResult without its config; give what jaxpg.sweep "
                          f"returns")
-    curves = check_finite(f"{name}: mean_return",
-                          np.asarray(result.metrics.mean_return, np.float64))
-    held_out = (None if result.eval_returns is None else check_finite(
-        f"{name}: eval_returns", np.asarray(result.eval_returns, np.float64)))
+    curves = _returns(f"{name}: mean_return", result.metrics.mean_return)
+    held_out = (None if result.eval_returns is None
+                else _returns(f"{name}: eval_returns", result.eval_returns))
     settings = [{key: float(value) for key, value in setting.items()} for setting in result.grid]
     return _scored(name, checkpoint.config_to_dict(result.config), settings, curves, held_out,
                    f"{name}: ")
@@ -234,8 +233,9 @@ def _json_value(value: object) -> str:
 
 
 def _read_metrics(path: pathlib.Path, folder: str | os.PathLike[str]) -> dict[str, np.ndarray]:
-    """`path`'s metrics.npz: finite float64 mean_return and, where it holds them, eval_returns
-    (`safe_read.read_arrays`); a ValueError naming `folder` or the file otherwise."""
+    """`path`'s metrics.npz: float64 mean_return and, where it holds them, eval_returns
+    (`safe_read.read_arrays`), checked (`_returns`); a ValueError naming `folder` or the file
+    otherwise."""
     npz = path / "metrics.npz"
     try:
         arrays = safe_read.read_arrays(npz, ("mean_return", "eval_returns"), _MAX_ARRAY_BYTES)
@@ -243,8 +243,15 @@ def _read_metrics(path: pathlib.Path, folder: str | os.PathLike[str]) -> dict[st
         raise _missing(folder, "metrics.npz") from None
     if "mean_return" not in arrays:
         raise ValueError(f"{npz}: no mean_return; run the sweep again")
-    return {name: check_finite(f"{npz}: {name}", values).astype(np.float64)
-            for name, values in arrays.items()}
+    return {name: _returns(f"{npz}: {name}", values) for name, values in arrays.items()}
+
+
+def _returns(name: str, values: object) -> np.ndarray:
+    """Returns as float64; a ValueError naming `name` unless each is finite and within float32's
+    range, as training computes them: sums and differences of many such cannot overflow."""
+    checked = check_finite(name, values)
+    check_representable(name, checked, np.float32)
+    return checked.astype(np.float64)
 
 
 def _load(sweeps: Sequence[Source]) -> list[Sweep]:
@@ -252,7 +259,8 @@ def _load(sweeps: Sequence[Source]) -> list[Sweep]:
 
     Raises:
       ValueError: for no source, one given twice (a folder as `X` and `X/`, or through a link;
-        one `SweepResult`), or one that is neither a folder's path nor a `SweepResult`.
+        one `SweepResult`), or one that is neither a folder's path (an empty one is not) nor a
+        `SweepResult`.
     """
     if isinstance(sweeps, str | os.PathLike | SweepResult):  # one, not a list of them
         raise ValueError(f"sweeps: expected a list of sweep folders or SweepResults, got one "
@@ -267,6 +275,9 @@ def _load(sweeps: Sequence[Source]) -> list[Sweep]:
             name, key = f"sweeps[{i}]", id(source)
         elif isinstance(source, str | os.PathLike):
             name, key = os.fspath(source), os.path.realpath(source)
+            if not name:  # (not the working directory)
+                raise ValueError(f"sweeps[{i}]: must be a sweep folder or a SweepResult, got an "
+                                 f"empty path")
         else:
             raise ValueError(f"sweeps[{i}]: must be a sweep folder or a SweepResult, got "
                              f"{type(source).__name__}")

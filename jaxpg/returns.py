@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpg import sums
+from jaxpg.validation import shown
 
 # One episode's rewards, as the book's interface takes them: a list or a 1-d array.
 Rewards = Sequence[float] | np.ndarray | jax.Array
@@ -111,7 +112,7 @@ def _check_discount_rate(discount_rate: float | jax.Array) -> None:
         return
     rate = np.asarray(discount_rate)
     if not (rate.ndim == 0 and rate.dtype.kind in "iuf" and 0 <= rate <= 1):
-        raise ValueError(f"discount_rate: must be a number in [0, 1], got {discount_rate!r}")
+        raise ValueError(f"discount_rate: must be a number in [0, 1], got {shown(discount_rate)}")
 
 
 def _pad(all_rewards: Sequence[Rewards]) -> tuple[jax.Array, jax.Array, list[int]]:

@@ -17,13 +17,10 @@ from typing import IO, Any
 
 import numpy as np
 
-from jaxpg.atomic_files import StrPath
+from jaxpg.atomic_files import StrPath, file_kind
 
 # Opening a FIFO for reading waits for a writer, unless it is opened without blocking.
 _NO_WAIT = getattr(os, "O_NONBLOCK", 0)
-_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"),
-          (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-          (stat.S_ISSOCK, "a socket"))
 # What zipfile and its decompressors raise on a damaged archive, besides ValueError.
 _DAMAGED = (zipfile.BadZipFile, zlib.error, lzma.LZMAError, EOFError, OSError,
             NotImplementedError, RuntimeError)
@@ -48,8 +45,7 @@ def open_regular(path: StrPath) -> IO[bytes]:
     try:
         mode = os.fstat(fd).st_mode
         if not stat.S_ISREG(mode):
-            kind = next((name for test, name in _KINDS if test(mode)), "no file")
-            raise ValueError(f"{path}: not a regular file ({kind})")
+            raise ValueError(f"{path}: not a regular file ({file_kind(mode)})")
         return os.fdopen(fd, "rb")
     except BaseException:
         os.close(fd)

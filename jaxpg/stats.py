@@ -39,7 +39,7 @@ import numpy.typing as npt
 import scipy.stats
 from numpy.lib.array_utils import normalize_axis_index
 
-from jaxpg.validation import check_finite, check_int
+from jaxpg.validation import check_finite, check_int, check_number
 
 # Resampled scores held at once (float64, plus as many int64 indices): 32 MiB each.
 _CHUNK_SCORES = 2**22
@@ -567,7 +567,7 @@ def _check_interval_args(
     if scores.shape[0] < 2:
         raise ValueError(
             f"{name}: a confidence interval needs at least 2 runs, got {scores.shape[0]}")
-    if not 0 < confidence < 1:
+    if not 0 < check_number("confidence", confidence) < 1:
         raise ValueError(f"confidence: must lie in (0, 1), got {confidence!r}")
     check_int("reps", reps)
     return scores

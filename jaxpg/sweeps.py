@@ -9,7 +9,7 @@ chunks when a memory budget asks for it.
 import dataclasses
 import itertools
 import math
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence, Set
 from typing import Any, NamedTuple, cast
 
 import jax
@@ -29,7 +29,7 @@ from jaxpg import (
     xla_options,
 )
 from jaxpg.types import Params
-from jaxpg.validation import check_callback, check_choice, check_int, check_number
+from jaxpg.validation import check_callback, check_choice, check_int, check_number, shown
 
 EVAL_PHYSICS = ("training", "base")  # what `sweep`'s held-out episodes play in
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
@@ -134,7 +134,7 @@ def expand_grid(config: train_config.TrainConfig, grid: Grid) -> list[dict[str, 
                              "in)")
     else:
         raise ValueError(f"grid: expected None, a dict of field to values or a non-empty list of "
-                         f"dicts, got {grid!r}")
+                         f"dicts, got {shown(grid)}")
     for setting in settings:
         _check_setting(config, setting)
     return settings
@@ -150,7 +150,7 @@ def _check_fields(names: Collection[str], config: train_config.TrainConfig) -> N
     allowed = grid_fields(config)
     unknown = set(names) - set(allowed)
     if unknown:
-        raise ValueError(f"grid: unknown field(s) {', '.join(sorted(unknown))} of "
+        raise ValueError(f"grid: unknown field(s) {', '.join(sorted(map(str, unknown)))} of "
                          f"{config.env_name}; allowed: {', '.join(allowed)}")
 
 
@@ -224,15 +224,18 @@ def count_seeds(seeds: Seeds) -> int:
       S.
 
     Raises:
-      ValueError: where `seeds` is no sequence, is empty, or is a range out of [0, 2**32).
+      ValueError: where `seeds` is no sequence (a dict, whose keys are not seeds, or a set, whose
+        order is not the caller's, included), is empty, or is a range out of [0, 2**32).
     """
+    if isinstance(seeds, Mapping | Set):
+        raise ValueError(f"{SEEDS_ALLOWED}, got a {type(seeds).__name__}")
     if isinstance(seeds, range) and seeds and not (
             0 <= min(seeds[0], seeds[-1]) and max(seeds[0], seeds[-1]) < 2**32):
-        raise ValueError(f"{SEEDS_ALLOWED}, got {seeds!r}")
+        raise ValueError(f"{SEEDS_ALLOWED}, got {shown(seeds)}")
     try:
         count = len(seeds)
     except TypeError:
-        raise ValueError(f"{SEEDS_ALLOWED}, got {seeds!r}") from None
+        raise ValueError(f"{SEEDS_ALLOWED}, got {shown(seeds)}") from None
     if count == 0:
         raise ValueError(f"{SEEDS_ALLOWED}, got none")
     return count
@@ -250,7 +253,7 @@ def check_seeds(seeds: Seeds) -> np.ndarray:
     count_seeds(seeds)
     seeds = np.asarray(seeds if isinstance(seeds, np.ndarray) else list(seeds))
     if seeds.ndim != 1 or not np.issubdtype(seeds.dtype, np.integer):
-        raise ValueError(f"{SEEDS_ALLOWED}, got {seeds!r}")
+        raise ValueError(f"{SEEDS_ALLOWED}, got {shown(seeds)}")
     if seeds.min() < 0 or seeds.max() >= 2**32:
         raise ValueError("seeds: must lie in [0, 2**32)")
     if np.unique(seeds).size != seeds.size:

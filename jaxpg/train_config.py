@@ -15,7 +15,13 @@ import optax
 from jaxpg import envs, losses, policies
 from jaxpg.envs import cartpole
 from jaxpg.types import ArrayLike
-from jaxpg.validation import check_int, check_number, check_representable, in_float64
+from jaxpg.validation import (
+    check_int,
+    check_number,
+    check_representable,
+    in_float64,
+    shown,
+)
 
 # An optimizer of the user's: `learning_rate -> optax.GradientTransformation`.
 OptimizerFactory = Callable[[ArrayLike], optax.GradientTransformation]
@@ -243,7 +249,7 @@ def check_ranges(randomize: Any, env_params: Any) -> Ranges:
     if not (isinstance(pairs, list | tuple)
             and all(isinstance(pair, list | tuple) and len(pair) == 2 for pair in pairs)):
         raise ValueError(f"randomize: expected a dict {{field: (low, high)}} or (field, (low, "
-                         f"high)) pairs, got {randomize!r}")
+                         f"high)) pairs, got {shown(randomize)}")
     floats = jax.dtypes.canonicalize_dtype(float)
     module = envs.module_of(env_params)
     physics = envs.physics(module)
@@ -254,7 +260,7 @@ def check_ranges(randomize: Any, env_params: Any) -> Ranges:
         if name in ranges:
             raise ValueError(f"randomize: {name} is given two ranges; give each field one")
         if not isinstance(bounds, list | tuple | np.ndarray) or np.shape(bounds) != (2,):
-            raise ValueError(f"{name}: expected a range (low, high), got {bounds!r}")
+            raise ValueError(f"{name}: expected a range (low, high), got {shown(bounds)}")
         # Each a number as given, finite (first: NaN is neither above nor below).
         low, high = (check_number(name, bound) for bound in bounds)
         if not low <= high:
@@ -398,12 +404,13 @@ def check_optimizer(name: Any) -> None:
         raise ValueError("optimizer: expected a name or a function learning_rate -> optimizer "
                          "(such as lambda lr: optax.adam(lr)), got an optimizer already made, "
                          "whose learning rate a sweep could not set")
-    if name not in OPTIMIZERS or not _trains(name):
+    known = isinstance(name, str) and name in OPTIMIZERS  # (a list is no key: unhashable)
+    if not known or not _trains(name):
         allowed = sorted(filter(_trains, OPTIMIZERS))
         raise ValueError(
-            f"optimizer: {'unknown' if name not in OPTIMIZERS else 'cannot train with'} "
-            f"{name!r}; allowed: optax optimizers that update from the gradient alone, such as "
-            f"adam, sgd, rmsprop ({len(allowed)} in all: {', '.join(allowed)})"
+            f"optimizer: {'cannot train with' if known else 'unknown'} "
+            f"{shown(name)}; allowed: optax optimizers that update from the gradient alone, such "
+            f"as adam, sgd, rmsprop ({len(allowed)} in all: {', '.join(allowed)})"
         )
 
 

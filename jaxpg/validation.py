@@ -5,11 +5,24 @@ argument and says what is allowed. They use numpy only, so that a check runs bef
 compiles anything.
 """
 
+import re
 from collections.abc import Callable, Collection
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
+MAX_SHOWN = 200  # characters of a value that a message shows, at most
+
+
+def shown(value: Any) -> str:
+    """`repr(value)` on one line, cut to `MAX_SHOWN` characters, for a one-line message.
+
+    An array's repr spans several lines, each after the first indented, and a large one's runs
+    long (a string's repr holds no line break: it escapes them).
+    """
+    text = re.sub(r"\n\s*", " ", repr(value))
+    return text if len(text) <= MAX_SHOWN else f"{text[:MAX_SHOWN - 3]}..."
 
 
 def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = None) -> int:
@@ -26,7 +39,7 @@ def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = Non
     """
     is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
     if not is_int or value < minimum or (maximum is not None and value >= maximum):
-        raise ValueError(f"{name}: must be {_int_range(minimum, maximum)}, got {value!r}")
+        raise ValueError(f"{name}: must be {_int_range(minimum, maximum)}, got {shown(value)}")
     return int(value)
 
 
@@ -62,7 +75,7 @@ def check_number(name: str, value: Any) -> float:
     array = np.asarray(value)
     if array.ndim != 0 or array.dtype.kind not in "iuf":
         hint = " (one value; a sweep's grid takes several)" if array.ndim else ""
-        raise ValueError(f"{name}: must be a number{hint}, got {value!r}")
+        raise ValueError(f"{name}: must be a number{hint}, got {shown(value)}")
     return float(check_finite(name, array))
 
 
@@ -78,7 +91,7 @@ def check_finite(name: str, values: Any) -> np.ndarray:
     """
     array = np.asarray(values)
     if array.dtype.kind not in "iuf":
-        raise ValueError(f"{name}: must be a number, got {values!r}")
+        raise ValueError(f"{name}: must be a number, got {shown(values)}")
     if not np.isfinite(array).all():
         raise ValueError(f"{name}: must be finite, got NaN or infinity")
     return array
@@ -145,5 +158,5 @@ def check_choice(name: str, value: Any, allowed: Collection[str], what: str = ""
     """
     if not isinstance(value, str) or value not in allowed:
         kind = f"{what} " if what else ""
-        raise ValueError(f"{name}: unknown {kind}{value!r}; allowed: {', '.join(allowed)}")
+        raise ValueError(f"{name}: unknown {kind}{shown(value)}; allowed: {', '.join(allowed)}")
     return value

@@ -100,6 +100,9 @@ def test_sweep_writes_summary_and_picture(tmp_path):
     (["sweep", "--coordinator", "localhost:1234"], "coordinator"),
     (["sweep", "--coordinator", "localhost:99999", "--num-processes", "2", "--process-id", "0"],
      "coordinator: expected HOST:PORT with PORT in [1, 65535]"),
+    # Digits that int() reads but JAX's server cannot bind (it crashed the process).
+    (["sweep", "--coordinator", "localhost:\u0661\u0662\u0663\u0664", "--num-processes", "1",
+      "--process-id", "0"], "coordinator: expected HOST:PORT with PORT in [1, 65535]"),
     (["evaluate", "--backend", "mujoco"], "backend"),
     (["evaluate", "--policy", "/nonexistent/dir"], "policy"),
     (["evaluate", "--env", "CartPole-v7"], "env"),

@@ -214,3 +214,17 @@ def test_bad_arguments():
     with pytest.raises(ValueError, match="env_params: .* dt of shape \\(2,\\)"):
         adapters.ClassicControlEnv(acrobot.V1.replace(dt=np.array([0.1, 0.2])))
     assert set(NAMES) == set(envs.MODULES) - set(cartpole.PRESETS)
+
+
+@pytest.mark.parametrize("name, other", [
+    ("Acrobot-v1", "Pendulum-v1"),
+    ("MountainCar-v0", continuous_mountain_car.V0),  # a name alike, another task
+    ("Pendulum-v1", acrobot.V1),
+])
+def test_an_id_refuses_another_tasks_params(name, other):
+    """`make` replaces the id's own `env_params`: another task would play under its time limit."""
+    with pytest.raises(ValueError, match=f"^env_params: jaxpg/{name} plays {name}, expected its "
+                                         f"name or params, got .*'s$"):
+        gymnasium.make(f"jaxpg/{name}", env_params=other)
+    assert gymnasium.make(f"jaxpg/{name}", env_params=name).unwrapped.env_params == (
+        envs.MODULES[name].make_params(name))

@@ -2,12 +2,15 @@
 ordinary open would wait on for a writer forever, and /dev/zero, which an ordinary read would read
 without end. Each command runs in its own process under a time limit, so that a regression fails
 the test instead of hanging it, and must exit 2 with one line naming the file. A checkpoint of
-NaN weights evaluates, with one line of warning."""
+NaN weights evaluates, with one line of warning. A FIFO where a file is to be written stays (a
+rename would have replaced it, /dev/null as well), and returns too large to sum are refused."""
 
 import json
 import os
+import stat
 import subprocess
 import sys
+import warnings
 
 import jax
 import numpy as np
@@ -81,3 +84,28 @@ def test_evaluate_warns_in_one_line_of_a_checkpoint_of_nan_weights(tmp_path):
     assert [line for line in lines if str(path) in line] == [
         f"jaxpg: warning: {path}: the weights hold NaN or infinity (training diverged); such a "
         f"policy's actions mean nothing"]
+
+
+def test_a_file_is_not_written_over_a_fifo(tmp_path):
+    config = TrainConfig(hidden=(4,))
+    params = policies.init_network(jax.random.PRNGKey(0), config.network)
+    fifo, gif = tmp_path / checkpoint.FILENAME, tmp_path / "episode.gif"
+    os.mkfifo(fifo)
+    os.mkfifo(gif)
+    with pytest.raises(ValueError, match=f"^path: {fifo} is a FIFO, not a regular file; "):
+        checkpoint.save(fifo, params, config)
+    status, lines = _run("render", "--out", gif, "--max-steps", "3")
+    assert status == 2 and lines == [f"jaxpg render: error: out: {gif} is a FIFO, not a regular "
+                                     f"file; give a file's path (it is created if missing)"]
+    assert all(stat.S_ISFIFO(path.stat().st_mode) for path in tmp_path.iterdir())
+
+
+def test_compare_refuses_returns_too_large_to_sum(tmp_path):
+    """1e308 is finite, but the mean of two overflows: refused as beyond float32, as training's."""
+    folder = _sweep_folder(tmp_path / "sweep")
+    np.savez(folder / "metrics.npz", mean_return=np.full((2, 3, 4), 1e308))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (no overflow on the way)
+        with pytest.raises(ValueError, match=f"^{folder / 'metrics.npz'}: mean_return: must be at "
+                                             r"most 3\.403e\+38 in magnitude"):
+            report.compare([folder], reps=50)

@@ -18,6 +18,7 @@ from jaxpg import (
     programs,
     report,
     results,
+    stats,
     sweep,
     train,
 )
@@ -87,9 +88,43 @@ _BOOK_PARAMS = policies.init_network(jax.random.PRNGKey(0), TrainConfig().networ
     # An argument with nothing to act on: no held-out episodes to play in the base physics.
     (lambda: sweep(TrainConfig(iterations=1), [0], eval_physics="base"),
      "^eval_physics: 'base' chooses the physics of held-out episodes; give eval_episodes too$"),
+    (lambda: TrainConfig(optimizer=["adam"]), r"^optimizer: unknown \['adam'\]; allowed: "),
+    (lambda: sweep(TrainConfig(iterations=1), [0], grid={5: [0.1]}),
+     r"^grid: unknown field\(s\) 5 of CartPole-v1; allowed: "),
+    # A dict's keys are no seeds, and a set's order is not the caller's.
+    (lambda: sweep(TrainConfig(iterations=1), {0: 1}), "^seeds: must be .*, got a dict$"),
+    (lambda: sweep(TrainConfig(iterations=1), {0, 1}), "^seeds: must be .*, got a set$"),
+    # An empty path is not the working directory.
+    (lambda: report.compare([""]),
+     "^sweeps\\[0\\]: must be a sweep folder or a SweepResult, got an empty path$"),
+    (lambda: checkpoint.load(""), "^path: expected a file or a directory, got an empty path$"),
+    (lambda: checkpoint.load(None), "^path: expected a file or a directory, got NoneType$"),
+    (lambda: stats.bootstrap_ci(np.ones(4), confidence="0.9"),  # not a TypeError of `<`
+     "^confidence: must be a number, got '0.9'$"),
 ])
 def test_arguments_of_the_wrong_kind_are_named_in_one_line(call, match, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ValueError, match=match):
         call()
     assert not list(tmp_path.iterdir())  # nothing read or written
+
+
+def _step_vec(actions):
+    env = gymnasium.make_vec("jaxpg/CartPole-v1", num_envs=len(actions))
+    env.reset(seed=0)
+    env.step(actions)
+
+
+@pytest.mark.parametrize("call, start", [
+    (lambda: sweep(TrainConfig(iterations=1), np.arange(8).reshape(4, 2)), "seeds: "),
+    (lambda: TrainConfig(randomize={"length": np.ones((2, 2))}), "length: "),
+    (lambda: TrainConfig(iterations=np.ones((3, 3), int)), "iterations: "),
+    (lambda: evaluate(policies.basic_policy, 3, 20, init_states=np.zeros((3, 4), bool)),
+     "init_states: "),
+    (lambda: _step_vec(np.full(100, 2)), "actions: "),
+])
+def test_a_value_whose_repr_spans_lines_is_shown_on_one(call, start):
+    with pytest.raises(ValueError) as error:
+        call()
+    message = str(error.value)
+    assert message.startswith(start) and "\n" not in message and len(message) < 400, message

@@ -10,6 +10,7 @@ from jaxpg.validation import (
     check_number,
     check_representable,
     in_float64,
+    shown,
 )
 
 F32 = np.finfo(np.float32)
@@ -113,3 +114,20 @@ def test_derived_values_overflow_float64_to_infinity_without_a_warning():
         difference = in_float64(np.subtract, 3e38, -3e38)
     assert product == np.inf and product.dtype == np.float64
     assert difference == 6e38  # 2 * 3e38: exact in float64, beyond float32's 3.4e38
+
+
+@pytest.mark.parametrize("check", [
+    lambda: check_int("seed", np.ones((3, 3), int)),
+    lambda: check_finite("scores", np.zeros((3, 3), bool)),
+    lambda: check_choice("backend", np.array([["jaxpg"], ["gymnasium"]]), ("jaxpg",)),
+])
+def test_an_array_whose_repr_spans_lines_is_shown_on_one(check):
+    with pytest.raises(ValueError, match=r" array\(\[\[.*\], \[.*\]\]"):
+        check()
+
+
+def test_a_long_value_is_cut():
+    assert shown(np.zeros((2, 2))) == "array([[0., 0.], [0., 0.]])"
+    assert shown("a  b\n") == repr("a  b\n")  # a string's own spaces and escapes stay
+    long = shown(list(range(1000)))
+    assert len(long) == 200 and long.endswith("...") and long.startswith("[0, 1, 2")

@@ -44,6 +44,7 @@ from jaxpg import _register_ids, envs
 from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
 from jaxpg.envs.gym import _host_params
 from jaxpg.types import HostArray
+from jaxpg.validation import shown
 
 State = Any  # as Gymnasium's env holds it: a numpy array, or MountainCar's (position, velocity)
 Action = Any  # an int for discrete actions; an array `[1]` (float32 from the space) otherwise
@@ -259,11 +260,11 @@ def _check_action(action: Action, action_space: spaces.Space) -> None:
     if isinstance(action_space, spaces.Discrete):
         if not action_space.contains(action):
             raise ValueError(f"action: must be an integer in [0, {action_space.n}), "
-                             f"got {action!r}")
+                             f"got {shown(action)}")
         return
     value = np.asarray(action)
     if value.shape != (1,) or value.dtype.kind not in "iuf" or not np.isfinite(value).all():
-        raise ValueError(f"action: must be one finite number, shaped (1,), got {action!r}")
+        raise ValueError(f"action: must be one finite number, shaped (1,), got {shown(action)}")
 
 
 class ClassicControlEnv(gymnasium.Env):
@@ -276,29 +277,37 @@ class ClassicControlEnv(gymnasium.Env):
 
     metadata: dict[str, Any] = {"render_modes": []}
 
-    def __init__(self, env_params: Any, render_mode: str | None = None) -> None:
+    def __init__(self, env_params: Any, render_mode: str | None = None,
+                 task: str | None = None) -> None:
         """Creates the environment.
 
         Args:
           env_params: the params of one of the four environments (`jaxpg.envs`), such as
             `pendulum.make_params(gravity=9.81)`, or the name of its preset (`NAMES`).
           render_mode: None.
+          task: optional: the name (`NAMES`) of the environment that `env_params` must be, as
+            the id `jaxpg/{task}` registers it: `gymnasium.make` replaces `env_params` with the
+            caller's, whose other environment would play under the id's time limit.
 
         Raises:
           ValueError: for a render mode, an unknown name, or `env_params` that are invalid or
-            another environment's (CartPole's: `jaxpg.envs.gym.CartPoleEnv`).
+            another environment's (CartPole's: `jaxpg.envs.gym.CartPoleEnv`; another than
+            `task`'s).
         """
         if render_mode is not None:
             raise ValueError(f"render_mode: must be None (no rendering), got {render_mode!r}")
         if isinstance(env_params, str):
             if env_params not in NAMES:
                 raise ValueError(f"env_params: expected one of {', '.join(NAMES)} or its "
-                                 f"params, got {env_params!r}")
+                                 f"params, got {shown(env_params)}")
             env_params = envs.MODULES[env_params].make_params(env_params)
         module = envs.module_of(env_params)
         if module not in _DYNAMICS:
             raise ValueError(f"env_params: expected the params of one of {', '.join(NAMES)}, "
                              f"got {type(env_params).__name__}")
+        if task is not None and module is not envs.MODULES[task]:
+            raise ValueError(f"env_params: jaxpg/{task} plays {task}, expected its name or "
+                             f"params, got {module.NAME}'s")
         module.check_params(env_params)
         self.env_params = env_params
         self._params = _host_params(env_params)
@@ -348,8 +357,8 @@ def register() -> None:
     and `jaxpg/Pendulum-v1` with Gymnasium (idempotent).
 
     `import jaxpg` has registered them already, as `gymnasium` was imported: each has
-    `ClassicControlEnv` as entry point with the task's name as `env_params`, and the time limit
-    and reward threshold of Gymnasium's id of the same name; `gymnasium.make(id, env_params=...)`
-    sets other physics.
+    `ClassicControlEnv` as entry point with the task's name as `env_params` and `task`, and the
+    time limit and reward threshold of Gymnasium's id of the same name;
+    `gymnasium.make(id, env_params=...)` sets other physics of that task.
     """
     _register_ids(gymnasium)

@@ -31,7 +31,7 @@ from jaxpg import _register_ids
 from jaxpg.envs import cartpole, render
 from jaxpg.envs.cartpole import CartPoleParams
 from jaxpg.types import HostArray
-from jaxpg.validation import check_int
+from jaxpg.validation import check_int, shown
 
 
 def observation_space(env_params: CartPoleParams) -> spaces.Box:
@@ -220,7 +220,8 @@ class CartPoleEnv(gymnasium.Env):
           gymnasium.error.ResetNeeded: before the first `reset`.
         """
         if not (type(action) is int and 0 <= action <= 1 or self.action_space.contains(action)):
-            raise ValueError(f"action: must be 0 (push left) or 1 (push right), got {action!r}")
+            raise ValueError(f"action: must be 0 (push left) or 1 (push right), got "
+                             f"{shown(action)}")
         if self._values is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
         self._values, terminated = _step_one(self._values, action, self._params)
@@ -367,7 +368,7 @@ class CartPoleVectorEnv(gymnasium.vector.VectorEnv):
         if actions.shape != (self.num_envs,) or indices is None or (indices > 1).any():
             raise ValueError(
                 f"actions: expected {self.num_envs} integer actions, each 0 (push left) or 1 "
-                f"(push right), got {actions!r}"
+                f"(push right), got {shown(actions)}"
             )
         if self._values is None:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
