@@ -10,6 +10,7 @@ import optax
 
 from jaxpg import hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
 from jaxpg.train_config import (
+    ELEMENTWISE_OPTIMIZERS,
     Hyperparams,
     Ranges,
     TrainConfig,
@@ -349,14 +350,9 @@ def _learn_by_hand(
     loss, grad_arrays = hand_gradient.loss_and_grad(
         policies.unflatten(train_state.params, network), network, transitions, advantages)
     grads = policies.flatten(grad_arrays, network)
-    # The step runs with the runs first: on the last axis, XLA's vectorised and scalar loops
-    # round a run's update differently for different numbers of runs.
-    runs_first = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, -1, 0))
-    runs_last = functools.partial(jax.tree.map, lambda leaf: jnp.moveaxis(leaf, 0, -1))
-    params, opt_state = runs_last(jax.vmap(functools.partial(optimizer_step, config))(
-        *runs_first((grads, train_state.opt_state, train_state.params)),
-        hyperparams.learning_rate,  # type: ignore[call-arg]  # mypy counts *Any as every argument
-    ))
+    # The step runs with the runs first (`runwise.vmap_runs_first`).
+    params, opt_state = runwise.vmap_runs_first(functools.partial(optimizer_step, config))(
+        grads, train_state.opt_state, train_state.params, hyperparams.learning_rate)
     # Summed by parameter array: over the one vector, LLVM fuses a few of the squares into the
     # additions for one number of runs and not another.
     grad_norm = jax.vmap(global_norm, in_axes=-1)(grad_arrays)
@@ -429,7 +425,23 @@ def learn_run(
                                      batch.alive)
         return loss - hyper.entropy_coef * entropy, {**metrics, "entropy": entropy}
 
-    optimizer = make_optimizer(config, hyper.learning_rate)
+    def step(grads: dict[str, Params], opt_state: dict[str, optax.OptState],
+             params: dict[str, Params], learning_rate: Array
+             ) -> tuple[dict[str, Params], dict[str, optax.OptState]]:
+        """One optimizer step of every network, each by its own optimizer."""
+        optimizer = make_optimizer(config, learning_rate)
+        stepped = {name: optimizer.update(grads[name], opt_state[name], params[name])
+                   for name in params}
+        return ({name: optax.apply_updates(params[name], stepped[name][0]) for name in params},
+                {name: stepped[name][1] for name in params})
+
+    # One update on one episode, of an elementwise optimizer, steps with the runs first, as the
+    # fast path does (`runwise.runs_first`): with the runs last, Adam's moments rounded otherwise
+    # alone there. Not elsewhere: it slowed a 32x32 MLP's training by half, and inside the loop of
+    # several updates more runs rounded otherwise alone, not fewer (docs/performance.md).
+    if (config.optimizer in ELEMENTWISE_OPTIMIZERS and config.updates == 1
+            and config.episodes == 1):
+        step = runwise.runs_first(step)
 
     def update(carry: tuple[dict[str, Params], dict[str, optax.OptState]], batch: losses.Batch
                ) -> tuple[tuple[dict[str, Params], dict[str, optax.OptState]],
@@ -438,10 +450,7 @@ def learn_run(
         norm, metrics)."""
         params, opt_state = carry
         (loss, metrics), grads = jax.value_and_grad(total, has_aux=True)(params, batch)
-        stepped = {name: optimizer.update(grads[name], opt_state[name], params[name])
-                   for name in params}
-        params = {name: optax.apply_updates(params[name], stepped[name][0]) for name in params}
-        opt_state = {name: stepped[name][1] for name in params}
+        params, opt_state = step(grads, opt_state, params, cast(Array, hyper.learning_rate))
         return (params, opt_state), (loss, global_norm(grads["policy"]), metrics)
 
     if config.updates == 1:

@@ -15,6 +15,12 @@ disagree. `jnp.max`'s derivative counts the entries equal to the maximum and div
 count: 0 / 0 there. A maximum that only shifts values (a softmax's) takes no gradient
 (`jax.lax.stop_gradient`, as `jax.nn.log_softmax` and `distributions.Categorical` do).
 
+Elementwise work that must round alike for any number of runs, an optimizer's step, can be marked
+`runs_first(fn)`: it is then evaluated by `jax.vmap` over a leading run axis (a run alone given one
+of size one), where XLA vectorises a run's arithmetic over its own entries as it does alone. With
+the runs last, XLA compiled Adam's moments otherwise for a run alone than beside others where the
+gradient's last sum was of one episode (docs/performance.md).
+
 Each operation keeps its meaning: an operation without a rule here is evaluated by `jax.vmap`
 over the run axis (still exact, not necessarily in a fixed order). `fn` is traced once per shape
 of its arguments; differentiate inside it (`jax.grad` in `fn`), so that the backward pass's sums
@@ -56,6 +62,23 @@ _ALONG_AXES = frozenset("""
 # Calls evaluated through their bodies; custom derivative rules are not needed, since `fn`
 # differentiates inside itself (its jaxpr holds the backward pass already).
 _CALLS = ("pjit", "jit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call")
+
+
+RUNS_FIRST = "runwise_runs_first"  # the name of a call that `runs_first` marks
+
+
+def runs_first(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """`fn`, marked for `runwise` to evaluate with the runs first; elsewhere `fn` itself.
+
+    `fn` takes and returns pytrees of arrays of one run, and must not sum over its entries in an
+    order that matters (its sums stay XLA's).
+    """
+    def marked(*args: Any) -> Any:
+        """`fn` of `args`."""
+        return fn(*args)
+
+    marked.__name__ = RUNS_FIRST
+    return jax.jit(marked)
 
 
 def runwise(fn: Callable[..., Any], batched: Any) -> Callable[..., Any]:
@@ -146,6 +169,8 @@ def _apply(eqn: core.JaxprEqn, ins: list[_Value], runs: int | None) -> list[_Val
     if name in _CALLS:
         inner = params["jaxpr"] if "jaxpr" in params else params["call_jaxpr"]
         closed = inner if hasattr(inner, "consts") else core.ClosedJaxpr(inner, ())
+        if params.get("name") == RUNS_FIRST:
+            return _with_runs_first(closed, ins, runs if any_batched else None)
         return _evaluate(closed.jaxpr, closed.consts, ins, runs)
     if name == "reduce_sum":
         return [(_sum(values[0], params["axes"]), ins[0][1])]
@@ -168,6 +193,32 @@ def _apply(eqn: core.JaxprEqn, ins: list[_Value], runs: int | None) -> list[_Val
     vmapped = jax.vmap(functools.partial(_bind, eqn), in_axes=[-1 if b else None for _, b in ins],
                        out_axes=-1)
     return [(out, True) for out in vmapped(*values)]
+
+
+def _with_runs_first(closed: core.ClosedJaxpr, ins: list[_Value],
+                     runs: int | None) -> list[_Value]:
+    """A `runs_first` call: its jaxpr by `vmap_runs_first`, a run alone (`runs` None) given a run
+    axis of one entry."""
+    fn = vmap_runs_first(core.jaxpr_as_fun(closed))
+    if runs is None:
+        return [(out[..., 0], False) for out in fn(*(jnp.expand_dims(v, -1) for v, _ in ins))]
+    return [(out, True) for out in fn(*(_lift(v, b, runs) for v, b in ins))]
+
+
+def vmap_runs_first(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """`fn` of one run's pytrees, for runs on the last axis of every leaf, computed by `jax.vmap`
+    over the runs moved first; its outputs with the runs last again.
+
+    With the runs first, XLA vectorises a run's elementwise arithmetic over the run's own
+    entries, as for a run alone; on the last axis its vectorised and scalar loops round a run's
+    optimizer step differently for different numbers of runs.
+    """
+    def wrapped(*args: Any) -> Any:
+        """`fn` of every run."""
+        out = jax.vmap(fn)(*jax.tree.map(lambda leaf: jnp.moveaxis(leaf, -1, 0), args))
+        return jax.tree.map(lambda leaf: jnp.moveaxis(leaf, 0, -1), out)
+
+    return wrapped
 
 
 def _scan(ins: list[_Value], params: dict[str, Any], runs: int | None) -> list[_Value]:

@@ -163,17 +163,19 @@ def test_a_seed_trains_alone_as_in_a_sweep(changes):
                 np.testing.assert_array_max_ulp(got, want, maxulp=4)
 
 
-def test_a_seed_of_one_episode_an_iteration_trains_alone_as_in_a_sweep():
-    """The built-in path with one episode an iteration, which a block of runs plays twice
-    (`rollout.played_episodes`): played once, XLA rounded a run's physics otherwise in a block than
-    alone, and 3 of these 5 seeds trained otherwise."""
-    config = TrainConfig(iterations=3, episodes=1, max_steps=20)
-    assert config.hand_gradient
+@pytest.mark.parametrize("changes", [{}, {"entropy_coef": 0.01}, {"loss": "ppo"},
+                                     {"policy": BookModule()}])
+def test_a_seed_of_one_episode_an_iteration_trains_alone_as_in_a_sweep(changes):
+    """One episode an iteration, which a block of runs plays twice (`rollout.played_episodes`;
+    played once, XLA rounded a run's physics otherwise in a block than alone), and one update
+    with Adam, which steps with the runs first (`runwise.runs_first`; with the runs last, its
+    moments rounded otherwise alone from the second iteration on)."""
+    config = TrainConfig(iterations=3, episodes=1, max_steps=20, **changes)
     together = sweep(config, seeds=range(5), show_progress=False)
     for s in range(5):
         alone = train(config, seed=s, show_progress=False)
         assert_trained_alike(alone, jax.tree.map(lambda leaf: leaf[0, s], TrainResult(
-            together.policy_params, together.metrics)))
+            together.policy_params, together.metrics, critic_params=together.critic_params)))
 
 
 def test_the_baselines_seeds_train_alone_as_in_a_sweep_for_the_books_150_iterations():
