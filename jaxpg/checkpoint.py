@@ -135,9 +135,10 @@ def save(
       The `pathlib.Path` written.
 
     Raises:
-      ValueError: for an empty `path`, or one of something else than a regular file (a device, a
-        FIFO: `atomic_files.check_replaceable`), a `config` that is no `TrainConfig`, `metrics`
-        that are no `Metrics`,
+      ValueError: for an empty `path`, one of something else than a regular file (a device, a
+        FIFO: `atomic_files.check_replaceable`) or one inside a folder of jaxpg's results (a
+        `jaxpg train` or `sweep` folder: `atomic_files.check_outside_results`), a `config` that is
+        no `TrainConfig`, `metrics` that are no `Metrics`,
         parameters of other shapes than `config`'s network's (or its loss's critic's) or not
         float32 or float64 (which `load` refuses), critic parameters for a loss without a
         critic, or a config field that cannot be saved.
@@ -152,6 +153,7 @@ def save(
         _check_params_match(critic_params, config, "critic_params", _grid_shape(runs))
         _check_floats(_state_dict(critic_params), "critic_params")
     path = _target(path, FILENAME if runs is None else SWEEP_FILENAME)
+    atomic_files.check_outside_results(path, "path")  # one folder, one result
     content = serialization.msgpack_serialize({
         "jaxpg_version": _jaxpg_version(),
         "config": config_to_dict(config),
@@ -298,13 +300,18 @@ def _describe(value: Any) -> str | dict[str, str] | None:
 
 def _require_objects(fields: object, objects: Mapping[str, Any]) -> None:
     """Raises a ValueError naming a field saved as a user's object that `objects` lacks, or gives
-    as another class or function (by qualified name)."""
+    as another class or function (by qualified name), or a field saved as jaxpg's own that
+    `objects` gives (it would be ignored)."""
     for name in _OBJECTS:
         saved = fields.get(name) if isinstance(fields, dict) else None
+        given = objects.get(name)
         if not isinstance(saved, dict):
+            if given is not None:
+                built_in = "the built-in network" if saved is None else repr(saved)
+                raise ValueError(f"{name}: the checkpoint was trained with {built_in}, not a "
+                                 f"user's {name}; pass no {name}")
             continue
         expected = saved.get("object")
-        given = objects.get(name)
         if given is None:
             raise ValueError(f"{name}: the checkpoint was trained with {expected}; pass it: "
                              f"checkpoint.load(path, {name}=...)")

@@ -594,6 +594,8 @@ def cmd_evaluate(args: argparse.Namespace) -> None:
     settings = physics_settings(values, env_params)
     if args.max_steps is None:
         args.max_steps = envs.max_steps(env_params)
+    # Every episode ends at the time limit: the steps played, said and recorded.
+    args.max_steps = min(args.max_steps, int(env_params.max_steps))
     policy = _one_policy(policies, config)
     if policy is not None and len(settings) == 1 and args.out is None:
         with _chunk_progress(args) as on_chunk:
@@ -867,8 +869,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="a directory for robustness.json, .csv and .png (median return "
                    "per physics setting)")
     p.add_argument("--episodes", type=int, default=500)
-    p.add_argument("--max-steps", type=int, help="the longest an episode runs (default: the "
-                   "environment's time limit; 200 on CartPole, the book's)")
+    p.add_argument("--max-steps", type=int, help="the longest an episode runs, at most the "
+                   "environment's time limit (default: that limit; 200 on CartPole, the book's)")
     p.add_argument("--backend", default="jaxpg", help="jaxpg or gymnasium (default %(default)s)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--env", help="an environment of the policy's kind (default: the policy's own; "

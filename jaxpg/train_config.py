@@ -66,9 +66,9 @@ class TrainConfig:
       epochs: how many times each iteration's episodes are gone through, one optimizer step per
         minibatch each time (PPO's epochs); 1 by default, the book's one step.
       minibatches: how many minibatches of whole episodes each epoch splits the episodes into,
-        shuffled anew every epoch; `episodes` must be a multiple of it. A minibatch of one
-        episode off the default path can train a seed in its last bits otherwise alone than in
-        a sweep (README).
+        shuffled anew every epoch; `episodes` must be a multiple of it. Several updates on
+        minibatches of one episode can train a seed in its last bits otherwise alone than in a
+        sweep on a CPU without AVX-512 (README).
       learning_rate: the optimizer's learning rate, positive.
       discount: the discount rate of the returns, in (0, 1].
       entropy_coef: the weight of the entropy bonus `-entropy_coef * mean entropy` added to any

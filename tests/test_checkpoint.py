@@ -6,6 +6,7 @@ import hashlib
 import json
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -287,6 +288,22 @@ def test_a_module_of_another_class_is_refused_naming_the_one_expected(tmp_path):
     with pytest.raises(ValueError, match=r"^policy: the checkpoint was trained with "
                                          r"\S*_TanhPolicy, got \S*_ReluPolicy$"):
         checkpoint.load(path, policy=_ReluPolicy())
+
+
+@pytest.mark.parametrize("given, said", [
+    ({"policy": _TanhPolicy()}, "policy: the checkpoint was trained with the built-in network, "
+                                "not a user's policy; pass no policy"),
+    ({"loss": lambda *args: 0.0}, "loss: the checkpoint was trained with 'reinforce', not a "
+                                  "user's loss; pass no loss"),
+    ({"optimizer": optax.adam}, "optimizer: the checkpoint was trained with 'adam', not a user's "
+                                "optimizer; pass no optimizer"),
+])
+def test_an_object_for_a_field_saved_as_jaxpgs_own_is_refused(tmp_path, given, said):
+    """It would be ignored: the checkpoint's built-in network, loss or optimizer is loaded."""
+    config = TrainConfig()
+    path = checkpoint.save(tmp_path, _params(config), config)
+    with pytest.raises(ValueError, match=f"^{re.escape(said)}$"):
+        checkpoint.load(path, **given)
 
 
 def test_an_optimizer_of_functools_partial_is_saved_and_checked_by_its_type(tmp_path):

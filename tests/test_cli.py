@@ -169,6 +169,14 @@ def test_evaluate_basic_policy_prints_statistics(capsys):
             f"max {expected.max:g}") in out
 
 
+@pytest.mark.parametrize("env, limit", [("CartPole-v1", 500), ("CartPole-v0", 200)])
+def test_evaluate_says_the_steps_the_time_limit_plays(env, limit, capsys):
+    """A --max-steps beyond the environment's time limit plays to the limit, and says so."""
+    assert cli.run_command(["evaluate", "--env", env, "--episodes", "3", "--max-steps",
+                            "100000"]) == 0
+    assert f"over 3 episodes of at most {limit} steps" in capsys.readouterr().out
+
+
 def test_render_writes_a_gif(tmp_path):
     path = tmp_path / "cart.gif"
     assert cli.run_command(["render", "--out", str(path), "--max-steps", "10"]) == 0

@@ -100,6 +100,26 @@ def test_a_file_is_not_written_over_a_fifo(tmp_path):
     assert all(stat.S_ISFIFO(path.stat().st_mode) for path in tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("files", [("policies.msgpack", "summary.json"),
+                                   ("policy.msgpack", "metrics.json")])
+def test_a_checkpoint_is_not_saved_into_a_folder_of_results(tmp_path, files):
+    """Into a sweep's folder it would have made a folder of two results (which `evaluate
+    --policy` then read as the single policy); into a train folder, replaced the policy that the
+    folder's metrics describe."""
+    config = TrainConfig(hidden=(4,))
+    params = policies.init_network(jax.random.PRNGKey(0), config.network)
+    folder = tmp_path / "results"
+    folder.mkdir()
+    for name in files:
+        (folder / name).write_text("kept")
+    for path in (folder, folder / "mine.msgpack"):
+        with pytest.raises(ValueError, match=f"^path: .* lies inside {folder}, a folder of jaxpg's "
+                                             "results"):
+            checkpoint.save(path, params, config)
+    assert sorted(p.name for p in folder.iterdir()) == sorted(files)
+    assert all((folder / name).read_text() == "kept" for name in files)
+
+
 def test_compare_refuses_returns_too_large_to_sum(tmp_path):
     """1e308 is finite, but the mean of two overflows: refused as beyond float32, as training's."""
     folder = _sweep_folder(tmp_path / "sweep")

@@ -138,7 +138,7 @@ def _clipped_adam(learning_rate):
     {"optimizer": _clipped_adam},  # the default network, off the fast path
     {"loss": "ppo"},
     {"loss": "ppo", "epochs": 2, "minibatches": 3},  # several updates: a scan over minibatches
-    # Minibatches of two episodes: one episode is a known exception (README).
+    # Minibatches of two episodes: of one, several updates are a known exception (README).
     {"loss": losses.PPO(losses.ValueNetwork((32,))), "hidden": (32,), "activation": "tanh",
      "episodes": 6, "epochs": 4, "minibatches": 3},
 ])
