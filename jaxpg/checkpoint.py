@@ -306,7 +306,8 @@ def _require_objects(fields: object, objects: Mapping[str, Any]) -> None:
         saved = fields.get(name) if isinstance(fields, dict) else None
         given = objects.get(name)
         if not isinstance(saved, dict):
-            if given is not None:
+            # (a config without the field is damaged: `config_from_dict` says so)
+            if given is not None and given != saved and isinstance(fields, dict) and name in fields:
                 built_in = "the built-in network" if saved is None else repr(saved)
                 raise ValueError(f"{name}: the checkpoint was trained with {built_in}, not a "
                                  f"user's {name}; pass no {name}")
@@ -445,7 +446,8 @@ def load(
       FileNotFoundError: there is no such file.
       ValueError: `path` is empty or no path (`resolve`); the file is no regular file, truncated,
         damaged (its content does not match its checksum), not a jaxpg checkpoint, from a newer
-        format version, trained with another class or function than the one given, or holds
+        format version, trained with another class or function than the one given (or with
+        jaxpg's own network, loss or optimizer where one is given), or holds
         weights or metrics that are not float32 or float64 arrays, or seeds out of [0, 2**32);
         the message names the path and the field.
 
@@ -572,8 +574,12 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
       run's own hyperparameters and physics.
 
     Raises:
-      ValueError: naming `run`, for a checkpoint of one run or a run outside the sweep.
+      ValueError: naming `loaded` for anything but a `Checkpoint`, naming `run` for a checkpoint
+        of one run or a run outside the sweep.
     """
+    if not isinstance(loaded, Checkpoint):
+        raise ValueError(f"loaded: expected a Checkpoint (checkpoint.load's), got "
+                         f"{type(loaded).__name__}")
     if loaded.grid is None:
         raise ValueError("run: the checkpoint holds one run, not a sweep's")
     grid_shape = (len(loaded.grid), len(cast(np.ndarray, loaded.seeds)))  # a sweep's: both set

@@ -9,7 +9,8 @@ for every step. Actions are integers for a discrete environment, floats for a co
 array then has a trailing run axis, which XLA vectorises over, and run r's episodes are exactly
 those it would play alone. Without run axes XLA vectorises over the episodes, in whole vectors
 only: `rollout(..., lanes=LANES)` plays a multiple of `LANES` episodes, the first ones again in
-the lanes left over, and drops the copies from what it returns (its policy sees them all).
+the lanes left over, and drops the copies from what it returns (its policy sees them all); one
+episode it plays twice (`played_episodes`).
 """
 
 import functools
@@ -60,13 +61,15 @@ LANES = 16  # floats in a vector of AVX-512, two of AVX2
 
 
 def played_episodes(num_episodes: int, lanes: int) -> int:
-    """How many episodes `rollout(..., lanes=lanes)` plays: a multiple of `lanes`, at least two.
+    """How many episodes `rollout(..., lanes=lanes)` plays: a multiple of `lanes`, and one episode
+    twice.
 
-    One episode is played twice: XLA drops an axis of one entry and compiles the physics' and the
-    policy's multiplications and additions into FMAs otherwise than beside other episodes, so a
-    run played one episode in a block otherwise than alone.
+    Played once, XLA drops its axis of one entry and compiles the physics' and the policy's
+    multiplications and additions into FMAs otherwise than beside other episodes, so a run played
+    one episode in a block otherwise than alone.
     """
-    return max(-(-num_episodes // lanes) * lanes, 2)
+    played = -(-num_episodes // lanes) * lanes
+    return 2 if played == 1 else played
 
 
 def reset_batch(key: PRNGKey, num: int, env_params: Any, repeat_to: int | None = None
@@ -148,7 +151,8 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
       init_state: optional state of the environment with `[E]` (or `[E, R]`) leaves, in place
         of random resets.
       lanes: the episodes are played in a multiple of this many lanes, the first ones again in the
-        lanes left over; the policy sees every lane, the result only the E episodes.
+        lanes left over (one episode in two: `played_episodes`); the policy sees every lane, the
+        result only the E episodes.
 
     Returns:
       `Episodes` with transitions of shape `[T, E, ...]` (`[T, E, R, ...]` for R runs).

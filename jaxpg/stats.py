@@ -39,7 +39,7 @@ import numpy.typing as npt
 import scipy.stats
 from numpy.lib.array_utils import normalize_axis_index
 
-from jaxpg.validation import check_finite, check_int, check_number
+from jaxpg.validation import check_bool, check_finite, check_int, check_number
 
 # Resampled scores held at once (float64, plus as many int64 indices): 32 MiB each.
 _CHUNK_SCORES = 2**22
@@ -150,7 +150,8 @@ def bootstrap_ci(
     """
     reduce = _statistic(statistic)
     scores = _check_interval_args(scores, confidence, reps)
-    replicates = _replicates(scores, _aggregate(reduce), reps, _rng(seed), _check_paired(paired))
+    replicates = _replicates(scores, _aggregate(reduce), reps, _rng(seed),
+                             check_bool("paired", paired))
     return _interval(replicates, confidence)
 
 
@@ -251,7 +252,7 @@ def improvement_matrix(
       `ImprovementMatrix` of `[G, G]` arrays.
     """
     scores = _check_settings(scores)
-    if _check_paired(paired):
+    if check_bool("paired", paired):
         _check_same_runs({f"scores[{g}]": s for g, s in enumerate(scores)})
     size = len(scores)
     probability, low, high = (np.full((size, size), 0.5) for _ in range(3))
@@ -313,7 +314,7 @@ def performance_profile(
         return np.stack([(flat > tau).mean(axis=-1) for tau in taus], axis=-1)
 
     replicates = _replicates(scores, lambda sample: above(_flat(sample)), reps, _rng(seed),
-                             _check_paired(paired))
+                             check_bool("paired", paired))
     return Band(taus, above(scores.ravel()), *_interval(replicates, confidence))
 
 
@@ -586,18 +587,11 @@ def _generators(
     Unpaired, both are one generator. Paired, the tables must have one shape, and the generators
     are two in one state: resampling whole rows of either draws the same run indices.
     """
-    if not _check_paired(paired):
+    if not check_bool("paired", paired):
         rng = _rng(seed)
         return rng, rng
     _check_same_runs(tables)
     return _rng(seed), _rng(seed)
-
-
-def _check_paired(paired: bool) -> bool:
-    """`paired`; a ValueError unless it is a bool."""
-    if not isinstance(paired, bool | np.bool_):
-        raise ValueError(f"paired: must be True or False, got {paired!r}")
-    return bool(paired)
 
 
 def _check_same_runs(tables: dict[str, np.ndarray]) -> None:

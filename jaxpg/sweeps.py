@@ -29,7 +29,14 @@ from jaxpg import (
     xla_options,
 )
 from jaxpg.types import Params
-from jaxpg.validation import check_callback, check_choice, check_int, check_number, shown
+from jaxpg.validation import (
+    check_bool,
+    check_callback,
+    check_choice,
+    check_int,
+    check_number,
+    shown,
+)
 
 EVAL_PHYSICS = ("training", "base")  # what `sweep`'s held-out episodes play in
 SOLVED_WINDOW = 10  # iterations averaged to decide whether a run is solved, as the book's last 10
@@ -369,6 +376,7 @@ def sweep(
     seeds, settings = check_arguments(config, seeds, grid, memory_budget, eval_episodes,
                                       eval_physics)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
+    check_bool("show_progress", show_progress)
     check_callback("on_iteration", on_iteration, "(iteration, metrics) -> None")
     if init_params is not None:
         init_params = reinforce.check_init_params(config, init_params)
@@ -391,9 +399,9 @@ def sweep(
         # with copies of the last run, whose results are dropped.
         indices = np.minimum(np.arange(start, start + chunk), num_runs - 1)
         label = f"runs {start + 1}-{stop} of {num_runs}" if chunk < num_runs else ""
-        with progress.bar(config.iterations, show_progress, label=label) as shown:
+        with progress.bar(config.iterations, show_progress, label=label) as bar:
             part = train_on_devices(program, config.iterations, _take(inputs, indices),
-                                    progress.together(shown, on_iteration), eval_episodes,
+                                    progress.together(bar, on_iteration), eval_episodes,
                                     (init_params, init_critic_params),
                                     eval_physics == "training")
         if result is None:

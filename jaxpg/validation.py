@@ -25,6 +25,14 @@ def shown(value: Any) -> str:
     return text if len(text) <= MAX_SHOWN else f"{text[:MAX_SHOWN - 3]}..."
 
 
+def check_bool(name: str, value: Any) -> bool:
+    """`value` as a `bool`; a ValueError naming `name` unless it is True or False (numpy's too),
+    not any value that is truthy."""
+    if not isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name}: must be True or False, got {shown(value)}")
+    return bool(value)
+
+
 def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = None) -> int:
     """`value` as an `int`; a ValueError naming `name` unless it is an integer in range.
 

@@ -77,6 +77,10 @@ _BOOK_PARAMS = policies.init_network(jax.random.PRNGKey(0), TrainConfig().networ
      "^policies: basic_policy plays CartPole"),
     (lambda: TrainConfig(optimizer=optax.adam(0.1)),
      "^optimizer: expected a name or a function learning_rate -> optimizer"),
+    (lambda: checkpoint.select_run(None, 0, 0),
+     "^loaded: expected a Checkpoint \\(checkpoint.load's\\), got NoneType$"),
+    (lambda: train(TrainConfig(iterations=2), show_progress="no"),  # not a truthy string
+     "^show_progress: must be True or False, got 'no'$"),
     (lambda: checkpoint.save("", _BOOK_PARAMS, TrainConfig()),  # not ./policy.msgpack
      "^path: expected a file or a directory, got an empty path$"),
     (lambda: checkpoint.save("p.msgpack", {}, TrainConfig()),

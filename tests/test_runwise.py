@@ -11,7 +11,7 @@ import numpy as np
 import optax
 import pytest
 
-from jaxpg.runwise import runwise
+from jaxpg.runwise import runs_first, runwise
 
 RUNS = 5
 
@@ -66,6 +66,27 @@ def test_an_optimizer_step_equals_its_vmap(runs):
     grads = jax.tree.map(lambda leaf: jnp.cos(leaf * 3.0), params)
     chex.assert_trees_all_close(jax.jit(runwise(step, True))(params, grads),
                                 _runs_last(step, params, grads), rtol=1e-6, atol=1e-7)
+
+
+def test_a_call_marked_runs_first_takes_the_runs_first(runs):
+    """The marked step is evaluated with the runs moved first (a transpose in the program, none
+    unmarked), equals its vmap with a shared argument reaching every run, and a run alone gets its
+    own result without a run axis."""
+    _, params, _ = runs
+
+    def step(params, rate):
+        return jax.tree.map(lambda leaf: leaf * rate + 1.0, params)
+
+    rate = jnp.float32(0.5)  # shared by every run
+    marked = runwise(runs_first(step), (True, False))
+    assert "transpose" in str(jax.make_jaxpr(marked)(params, rate))
+    assert "transpose" not in str(jax.make_jaxpr(runwise(step, (True, False)))(params, rate))
+    together = jax.jit(marked)(params, rate)
+    chex.assert_trees_all_equal(
+        together, jax.vmap(step, in_axes=(-1, None), out_axes=-1)(params, rate))
+    alone = jax.jit(runwise(runs_first(step), False))(
+        jax.tree.map(lambda leaf: leaf[..., 1], params), rate)
+    chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., 1], together))
 
 
 def test_a_run_alone_rounds_as_among_others(runs):

@@ -44,7 +44,7 @@ from jaxpg import _register_ids, envs
 from jaxpg.envs import acrobot, continuous_mountain_car, mountain_car, pendulum
 from jaxpg.envs.gym import _host_params
 from jaxpg.types import HostArray
-from jaxpg.validation import shown
+from jaxpg.validation import check_choice, shown
 
 State = Any  # as Gymnasium's env holds it: a numpy array, or MountainCar's (position, velocity)
 Action = Any  # an int for discrete actions; an array `[1]` (float32 from the space) otherwise
@@ -305,7 +305,7 @@ class ClassicControlEnv(gymnasium.Env):
         if module not in _DYNAMICS:
             raise ValueError(f"env_params: expected the params of one of {', '.join(NAMES)}, "
                              f"got {type(env_params).__name__}")
-        if task is not None and module is not envs.MODULES[task]:
+        if task is not None and module is not envs.MODULES[check_choice("task", task, NAMES)]:
             raise ValueError(f"env_params: jaxpg/{task} plays {task}, expected its name or "
                              f"params, got {module.NAME}'s")
         module.check_params(env_params)

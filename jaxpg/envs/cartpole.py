@@ -14,7 +14,7 @@ from flax import struct
 from jaxpg import rng
 from jaxpg.envs import common
 from jaxpg.types import ArrayLike, Observation, PRNGKey
-from jaxpg.validation import check_choice, check_representable, in_float64
+from jaxpg.validation import check_bool, check_choice, check_representable, in_float64
 
 NAME = "CartPole-v1"
 OBS_SIZE = 4  # x, x_dot, theta, theta_dot
@@ -217,9 +217,7 @@ def check_params(env_params: CartPoleParams) -> None:
     """
     common.check_numbers(env_params, CartPoleParams, _POSITIVE)  # each field on its own
     check_choice("integrator", env_params.integrator, INTEGRATORS)
-    if not isinstance(env_params.sutton_barto_reward, bool | np.bool_):
-        raise ValueError(f"sutton_barto_reward: must be True or False, got "
-                         f"{env_params.sutton_barto_reward!r}")
+    check_bool("sutton_barto_reward", env_params.sutton_barto_reward)
     floats = jax.dtypes.canonicalize_dtype(float)
     for name, (operation, *operands) in _DERIVED.items():
         values = [common.concrete(getattr(env_params, operand)) for operand in operands]

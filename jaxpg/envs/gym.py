@@ -31,7 +31,7 @@ from jaxpg import _register_ids
 from jaxpg.envs import cartpole, render
 from jaxpg.envs.cartpole import CartPoleParams
 from jaxpg.types import HostArray
-from jaxpg.validation import check_int, shown
+from jaxpg.validation import check_bool, check_int, shown
 
 
 def observation_space(env_params: CartPoleParams) -> spaces.Box:
@@ -47,10 +47,7 @@ def _make_params(env_params: CartPoleParams | None, sutton_barto_reward: bool) -
     """The `CartPoleParams` of an environment: `env_params` (default v1), validated."""
     env_params = cartpole.V1 if env_params is None else env_params
     cartpole.check_params(env_params)
-    if not isinstance(sutton_barto_reward, bool | np.bool_):  # (not any value that is truthy)
-        raise ValueError(f"sutton_barto_reward: must be True or False, got "
-                         f"{sutton_barto_reward!r}")
-    if sutton_barto_reward:
+    if check_bool("sutton_barto_reward", sutton_barto_reward):
         env_params = env_params.replace(sutton_barto_reward=True)
     return env_params
 
