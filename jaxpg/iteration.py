@@ -172,19 +172,21 @@ def init_runs(config: TrainConfig, keys: PRNGKey, hyperparams: Hyperparams,
     return TrainState(params, opt_state, jax.vmap(lambda k: jax.random.split(k)[0])(keys))
 
 
-def optimizer_step(config: TrainConfig, grads: Array, opt_state: optax.OptState,
-                   policy_params: Array, learning_rate: ArrayLike) -> tuple[Array, optax.OptState]:
-    """One optimizer step of one run on the fast path, on its flat parameters and gradient.
+def optimizer_step(config: TrainConfig, grads: Params, opt_state: optax.OptState,
+                   policy_params: Params, learning_rate: ArrayLike
+                   ) -> tuple[Params, optax.OptState]:
+    """One optimizer step of one run's network: on the fast path its flat parameters `[P]`,
+    otherwise each network's of `learn_run`.
 
     Args:
       config: the `TrainConfig`.
-      grads: the run's gradient `[P]`.
-      opt_state: the run's optimizer state.
-      policy_params: the run's flat policy parameters `[P]`.
+      grads: the run's gradient, shaped as `policy_params`.
+      opt_state: the run's optimizer state of that network.
+      policy_params: the run's parameters of the network.
       learning_rate: the run's learning rate, a scalar.
 
     Returns:
-      (policy_params `[P]`, opt_state) after the step.
+      (policy_params, opt_state) after the step.
     """
     updates, opt_state = make_optimizer(config, learning_rate).update(
         grads, opt_state, policy_params)
@@ -428,12 +430,11 @@ def learn_run(
     def step(grads: dict[str, Params], opt_state: dict[str, optax.OptState],
              params: dict[str, Params], learning_rate: Array
              ) -> tuple[dict[str, Params], dict[str, optax.OptState]]:
-        """One optimizer step of every network, each by its own optimizer."""
-        optimizer = make_optimizer(config, learning_rate)
-        stepped = {name: optimizer.update(grads[name], opt_state[name], params[name])
-                   for name in params}
-        return ({name: optax.apply_updates(params[name], stepped[name][0]) for name in params},
-                {name: stepped[name][1] for name in params})
+        """One optimizer step of every network, each by its own optimizer (`optimizer_step`)."""
+        stepped = {name: optimizer_step(config, grads[name], opt_state[name], params[name],
+                                        learning_rate) for name in params}
+        return ({name: new for name, (new, _) in stepped.items()},
+                {name: state for name, (_, state) in stepped.items()})
 
     # One update on one episode, of an elementwise optimizer, steps with the runs first, as the
     # fast path does (`runwise.runs_first`): with the runs last, Adam's moments rounded otherwise
