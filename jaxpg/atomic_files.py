@@ -499,12 +499,19 @@ def atomic_path(path: StrPath) -> Iterator[pathlib.Path]:
     Raises:
       ValueError: naming `path`, where it exists as something else than a regular file
         (`check_replaceable`), before anything is written.
+      OSError: of the kind the system gave, naming `path`'s folder, where no file can be created
+        there (a read-only or virtual file system such as /proc, no permission).
     """
     check_replaceable(path, "path")
     path = pathlib.Path(path)
     tmp = path.with_name(temporary_name(path.name, f"{_unique()}.tmp{path.suffix}"))
     # Created here (honouring the umask, unlike mkstemp's 0600) so the name is ours alone.
-    fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
+    try:
+        fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
+    except OSError as error:  # named by `path`'s folder, not by the temporary file's name
+        named = type(error)(f"path: cannot write in {path.parent} ({error.strerror})")
+        named.errno = error.errno
+        raise named from None
     try:
         if fcntl is not None:
             fcntl.flock(fd, fcntl.LOCK_EX)

@@ -138,10 +138,11 @@ def save(
       ValueError: for an empty `path`, one of something else than a regular file (a device, a
         FIFO: `atomic_files.check_replaceable`) or one inside a folder of jaxpg's results (a
         `jaxpg train` or `sweep` folder: `atomic_files.check_outside_results`), a `config` that is
-        no `TrainConfig`, `metrics` that are no `Metrics`,
-        parameters of other shapes than `config`'s network's (or its loss's critic's) or not
-        float32 or float64 (which `load` refuses), critic parameters for a loss without a
-        critic, or a config field that cannot be saved.
+        no `TrainConfig`, `metrics` that are no `Metrics`, a whole `TrainResult` given as
+        parameters, parameters of other shapes than `config`'s network's (or its loss's
+        critic's) or not float32 or float64 (which `load` refuses), critic parameters for a loss
+        without a critic, or a config field that cannot be saved.
+      OSError: where the file cannot be created (`atomic_files.atomic_path`).
     """
     if not isinstance(config, train_config.TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
@@ -377,6 +378,8 @@ def _check_params_match(
 
     The shapes are compared after the leading axes `lead` (a sweep's `(G, S)`).
     """
+    if hasattr(params, "policy_params"):  # a `TrainResult` given whole
+        raise ValueError(f"{where}: got a {type(params).__name__}; pass its .{where}")
     critic = where == "critic_params"
     network = losses.critic(config.loss) if critic else config.network
     if network is None:

@@ -222,6 +222,12 @@ def test_a_folder_that_cannot_be_written_is_refused_when_claimed(folder):
         atomic_files.check_writable("/proc", "path")
 
 
+def test_a_file_that_cannot_be_created_is_named_by_its_folder_not_a_temporary_name():
+    with pytest.raises(FileNotFoundError, match=r"^path: cannot write in /proc \(") as raised:
+        atomic_files.atomic_write("/proc/x.json", "{}")
+    assert raised.value.errno == 2 and ".tmp" not in str(raised.value)
+
+
 @pytest.mark.parametrize("files", atomic_files.RESULT_FILES)
 def test_no_result_is_written_inside_another(tmp_path, files):
     for name in files:

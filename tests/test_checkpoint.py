@@ -522,12 +522,17 @@ def test_files_without_a_critic_load_without_one(tmp_path):
     assert checkpoint.load(saved).critic_params is None
 
 
-def test_save_refuses_a_critic_the_loss_has_not_or_of_other_shapes(tmp_path):
+def test_save_refuses_a_critic_the_loss_has_not_other_shapes_or_a_whole_result(tmp_path):
     with pytest.raises(ValueError, match="^critic_params: the loss 'reinforce' has no critic$"):
         checkpoint.save(tmp_path, _params(CONFIG), CONFIG, critic_params=_critic(WITH_CRITIC))
     with pytest.raises(ValueError, match="^critic_params: parameters do not fit the critic"):
         checkpoint.save(tmp_path, _params(WITH_CRITIC), WITH_CRITIC,
                         critic_params=_params(WITH_CRITIC))
+    whole = jaxpg.TrainResult(_params(WITH_CRITIC), None, None, _critic(WITH_CRITIC))
+    for field, given in [("policy_params", (whole, None)), ("critic_params", (None, whole))]:
+        with pytest.raises(ValueError, match=f"^{field}: got a TrainResult; pass its .{field}$"):
+            checkpoint.save(tmp_path, given[0] or _params(WITH_CRITIC), WITH_CRITIC,
+                            critic_params=given[1])
     # Parameters that `load` would refuse: not saved either.
     with pytest.raises(ValueError, match=r"^policy_params\.params\..*: expected float32 or "
                                          r"float64 values, got float16$"):
