@@ -32,10 +32,13 @@ def elu(x: jax.Array) -> jax.Array:
 @elu.defjvp
 def _elu_jvp(primals: tuple[jax.Array], tangents: tuple[jax.Array]
              ) -> tuple[jax.Array, jax.Array]:
-    """`elu` and its derivative, 1 where `x` is positive, else `elu(x) + 1`, times the tangent."""
+    """`elu` and its derivative, 1 where `x` is positive, else `elu(x) + 1`, times the tangent.
+
+    `x` is positive exactly where `elu(x)` is: the derivative reads only the value, so that XLA
+    need not compute `x` again beside it."""
     (x,), (dx,) = primals, tangents
     y = elu(x)
-    return y, jnp.where(x > 0, 1, y + 1) * dx
+    return y, jnp.where(y > 0, 1, y + 1) * dx
 
 
 @jax.custom_jvp
