@@ -7,7 +7,9 @@ The estimate (`needed_bytes`) is a host's, in floats of JAX's default dtype:
 
 - each step of each episode that a run plays: `STEP_FLOATS`, plus `UNIT_FLOATS` per hidden unit of
   the default network: its record, the loss's values and every layer's activations with their
-  gradients, as XLA lays out one iteration;
+  gradients, as XLA lays out one iteration; with several updates an iteration (`epochs` or
+  `minibatches` above 1), `EPOCH_STEP_FLOATS` more per step for each epoch, whose shuffled copy of
+  the episodes XLA lays out whole;
 - the parameters of every run, with their gradient and optimizer state: `PARAMETER_COPIES` floats
   each;
 - the metrics of every run, `METRIC_FLOATS` per iteration, and `CALL_BYTES` of bookkeeping for
@@ -41,6 +43,10 @@ from jaxpg.validation import check_int
 # hidden units, fitted to `memory_analysis()` (docs/performance.md).
 STEP_FLOATS = 15
 UNIT_FLOATS = 4
+# Per step of an episode and per epoch, with several updates an iteration: the epochs' shuffled
+# minibatches, 38 bytes on CartPole in float32 by `memory_analysis()` (up to 59 with PPO on
+# Acrobot's 6 observations; 32 to 64 epochs of 10 to 40 episodes), about 9.5 floats.
+EPOCH_STEP_FLOATS = 12
 PARAMETER_COPIES = 5  # the parameters, their gradient, two moments and the trained copy returned
 METRIC_FLOATS = 16  # six metrics and up to two of a loss's own, kept twice (trained, returned)
 CALL_BYTES = 6000  # the host's bookkeeping of one call (docs/performance.md)
@@ -73,7 +79,7 @@ def needed_bytes(config: TrainConfig, runs: int = 1) -> int:
       runs: how many runs train, in one chunk.
 
     Returns:
-      An int; it grows with iterations, episodes, max_steps, hidden units and runs.
+      An int; it grows with iterations, episodes, max_steps, hidden units, epochs and runs.
     """
     itemsize = _itemsize()
     # The blocks as a CPU trains them, one per core at a time, each padded to `size` runs.
@@ -89,6 +95,8 @@ def needed_bytes(config: TrainConfig, runs: int = 1) -> int:
     # Fitted on CartPole's 4 observations; a step records (and the policy reads) each one more.
     extra = max(0, obs_size - 4)
     steps = config.max_steps * episodes * (STEP_FLOATS + extra + UNIT_FLOATS * units)
+    if config.updates > 1:  # every epoch's minibatches, laid out at once
+        steps += config.max_steps * config.episodes * config.epochs * (EPOCH_STEP_FLOATS + extra)
     kept = PARAMETER_COPIES * parameters + METRIC_FLOATS * config.iterations
     calls = -(-config.iterations // ITERATIONS_PER_CALL)
     return (at_once * steps + runs * kept) * itemsize + blocks * calls * CALL_BYTES
@@ -120,9 +128,10 @@ def check(config: TrainConfig, runs: int = 1, what: str = "1 run") -> None:
         raise ValueError(f"hidden: at most {MAX_UNITS} units per layer of the default network "
                          f"(XLA's CPU compiler crashes on wider ones), got {config.hidden}")
     network = "" if config.policy is not None else f", hidden {config.hidden}"
+    epochs = f" in {config.epochs} epochs" if config.epochs > 1 else ""
     check_fits(needed_bytes(config, runs), "memory",
                f"training {what} for {config.iterations} iterations of {config.episodes} "
-               f"episodes of at most {config.max_steps} steps{network}")
+               f"episodes of at most {config.max_steps} steps{epochs}{network}")
 
 
 def evaluation_bytes(episodes: int, max_steps: int, runs: int = 1) -> int:

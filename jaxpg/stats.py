@@ -30,6 +30,7 @@ Intervals are percentile intervals: the `(1 - confidence) / 2` and `(1 + confide
 quantiles of the statistic over the resamples (linear interpolation, as `np.percentile`).
 """
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple, cast
@@ -37,9 +38,8 @@ from typing import Any, NamedTuple, cast
 import numpy as np
 import numpy.typing as npt
 import scipy.stats
-from numpy.lib.array_utils import normalize_axis_index
 
-from jaxpg.validation import check_bool, check_finite, check_int, check_number
+from jaxpg.validation import check_bool, check_finite, check_int, check_number, shown
 
 # Resampled scores held at once (float64, plus as many int64 indices): 32 MiB each.
 _CHUNK_SCORES = 2**22
@@ -104,10 +104,10 @@ def optimality_gap(scores: np.ndarray, target: float, axis: int | None = None) -
       A float for `axis=None`, otherwise the array without `axis`.
 
     Raises:
-      ValueError: for a `target` that is not finite, or scores that are empty or not finite.
+      ValueError: for a `target` that is not one finite number (`check_number`), or scores that
+        are empty or not finite.
     """
-    if not math.isfinite(target):
-        raise ValueError(f"target: must be a finite number, got {target!r}")
+    target = check_number("target", target)
     return target - np.mean(np.minimum(_check_scores(scores, axis=axis), target), axis=axis)
 
 
@@ -304,7 +304,7 @@ def performance_profile(
     scores = _check_interval_args(scores, confidence, reps)
     if taus is None:
         taus = np.linspace(scores.min(), scores.max(), PROFILE_POINTS)
-    taus = np.asarray(taus, dtype=np.float64)
+    taus = check_finite("taus", taus).astype(np.float64)
     if taus.ndim != 1 or taus.size == 0:
         raise ValueError(f"taus: expected a non-empty [P] array, got shape {taus.shape}")
 
@@ -343,7 +343,8 @@ def iqm_curve(
     scores = _check_interval_args(scores, confidence, reps)
     if scores.ndim != 2:
         raise ValueError(f"scores: expected [runs, iterations], got shape {scores.shape}")
-    iterations = np.arange(1, scores.shape[1] + 1) if iterations is None else np.asarray(iterations)
+    iterations = (np.arange(1, scores.shape[1] + 1) if iterations is None
+                  else check_finite("iterations", iterations))
     if iterations.shape != scores.shape[1:]:
         raise ValueError(f"iterations: expected shape {scores.shape[1:]} (a number per column of "
                          f"scores), got {iterations.shape}")
@@ -527,16 +528,23 @@ def _interval(replicates: np.ndarray, confidence: float) -> tuple[Any, Any]:
 
 def _check_scores(scores: npt.ArrayLike, name: str = "scores", axis: int | None = None
                   ) -> np.ndarray:
-    """`scores` as a float64 `[R]` or `[R, T]` array; a ValueError unless non-empty and finite,
-    and of magnitudes at most `_max_score` of the scores that one aggregate takes together: all
-    of them, or those along `axis`."""
-    scores = np.asarray(scores, dtype=np.float64)
+    """`scores` as a float64 `[R]` or `[R, T]` array; a ValueError unless an array of numbers
+    (not bools, strings or lists of other lengths), non-empty and finite, and of magnitudes at
+    most `_max_score` of the scores that one aggregate takes together: all of them, or those
+    along `axis`, an integer naming one of their axes."""
+    try:
+        scores = np.asarray(scores)
+    except ValueError:  # numpy's word for lists of other lengths
+        raise ValueError(f"{name}: expected [runs] or [runs, tasks] numbers, got rows of other "
+                         f"lengths: {shown(scores)}") from None
     if scores.ndim not in (1, 2):
         raise ValueError(f"{name}: expected [runs] or [runs, tasks], got shape {scores.shape}")
     if scores.size == 0:
         raise ValueError(f"{name}: empty, expected at least one score")
-    count = scores.size if axis is None else scores.shape[normalize_axis_index(axis, scores.ndim)]
-    largest, limit = np.abs(check_finite(name, scores)).max(), _max_score(count)
+    scores = check_finite(name, scores).astype(np.float64)
+    count = scores.size if axis is None else scores.shape[
+        check_int("axis", axis, -scores.ndim, scores.ndim)]
+    largest, limit = np.abs(scores).max(), _max_score(count)
     if largest > limit:
         raise ValueError(f"{name}: magnitudes must be at most {limit:.4g} for {count} scores, "
                          f"so that the statistics' sums cannot overflow, got {float(largest)!r}")
@@ -612,19 +620,37 @@ def _check_pair(x: npt.ArrayLike, y: npt.ArrayLike) -> tuple[np.ndarray, np.ndar
 
 
 def _check_settings(scores: Sequence[npt.ArrayLike]) -> list[np.ndarray]:
-    """Every setting's scores checked (`_check_scores`); a ValueError for no setting."""
+    """Every setting's scores checked (`_check_scores`); a ValueError for no setting, or for
+    one whose tasks are not the first's."""
     checked = [_check_scores(s, f"scores[{g}]") for g, s in enumerate(scores)]
     if not checked:
         raise ValueError("scores: expected at least one setting, got none")
+    for g, setting in enumerate(checked[1:], 1):
+        if setting.shape[1:] != checked[0].shape[1:]:
+            raise ValueError(f"scores[{g}]: expected the tasks of scores[0], "
+                             f"{checked[0].shape[1:]}, got shape {setting.shape}")
     return checked
 
 
 def _statistic(statistic: Statistic) -> Callable[..., Aggregate]:
-    """The function that `statistic` names, or `statistic` itself where it is one."""
+    """The function that `statistic` names, or `statistic` itself where it is one, checked as it
+    reduces each chunk of resamples (`_one_per_resample`)."""
     if callable(statistic):
-        return statistic
-    if statistic in STATISTICS:
+        return functools.partial(_one_per_resample, statistic)
+    if isinstance(statistic, str) and statistic in STATISTICS:
         return STATISTICS[statistic]
     raise ValueError(
-        f"statistic: expected 'iqm', 'mean', 'median' or a function, got {statistic!r}"
+        f"statistic: expected 'iqm', 'mean', 'median' or a function, got {shown(statistic)}"
     )
+
+
+def _one_per_resample(statistic: Callable[..., Aggregate], sample: np.ndarray, axis: int
+                      ) -> np.ndarray:
+    """`statistic(sample, axis)` of `[B, N]` resamples: a ValueError unless it is `[B]` numbers,
+    one per resample, as `np.mean(sample, axis=-1)` gives."""
+    reduced = np.asarray(statistic(sample, axis=axis))
+    if reduced.shape != sample.shape[:1] or reduced.dtype.kind not in "iuf":
+        raise ValueError(f"statistic: expected a function f(scores, axis) giving one number per "
+                         f"row of [B, N] scores, as np.mean does: [{sample.shape[0]}] for shape "
+                         f"{sample.shape}, got {reduced.dtype} of shape {reduced.shape}")
+    return reduced

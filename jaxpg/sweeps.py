@@ -161,6 +161,17 @@ def _check_fields(names: Collection[str], config: train_config.TrainConfig) -> N
                          f"{config.env_name}; allowed: {', '.join(allowed)}")
 
 
+def _check_not_drawn(settings: list[dict[str, float]], config: train_config.TrainConfig) -> None:
+    """Raises a ValueError naming the fields that the settings (`expand_grid`) vary and
+    `config.randomize` draws per episode: training would replace the grid's values by its draws,
+    every setting training alike, and only held-out episodes of the base physics read them."""
+    drawn = sorted(set().union(*settings) & {name for name, _ in config.randomize})
+    if drawn:
+        raise ValueError(f"grid: varies {', '.join(drawn)}, which the config's randomize draws "
+                         f"per episode in place of the grid's values; vary one or the other, or "
+                         f"evaluate each setting's values with eval_physics='base'")
+
+
 def _axes(grid: dict[str, Any]) -> dict[str, list[float]]:
     """A dict grid's axes as lists of Python numbers; a ValueError for an empty or repeated one.
 
@@ -292,9 +303,10 @@ def check_arguments(
       (the `[S]` seeds as `check_seeds` gives them, the G settings of `expand_grid`).
 
     Raises:
-      ValueError: one line naming the argument, for any of them out of range, or one that needs
-        more memory than the machine has, with the estimate: "memory" where one run does not
-        fit (`budget.check`), "seeds" where the S x G runs do not, "eval_episodes" where their
+      ValueError: one line naming the argument, for any of them out of range, a grid of a field
+        that `config.randomize` draws (but with `eval_physics="base"`), or one that needs more
+        memory than the machine has, with the estimate: "memory" where one run does not fit
+        (`budget.check`), "seeds" where the S x G runs do not, "eval_episodes" where their
         held-out episodes do not (`budget.evaluation_bytes`).
     """
     if not isinstance(config, train_config.TrainConfig):
@@ -304,6 +316,8 @@ def check_arguments(
     budget.check_memory_budget(memory_budget)
     eval_episodes = check_int("eval_episodes", eval_episodes, 0, 2**20)
     check_choice("eval_physics", eval_physics, EVAL_PHYSICS)
+    if eval_physics == "training":
+        _check_not_drawn(settings, config)
     if eval_physics != "training" and not eval_episodes:
         raise ValueError(f"eval_physics: {eval_physics!r} chooses the physics of held-out "
                          "episodes; give eval_episodes too")

@@ -259,7 +259,7 @@ def check_ranges(randomize: Any, env_params: Any) -> Ranges:
             raise ValueError(f"randomize: unknown field {name!r}; allowed: {', '.join(physics)}")
         if name in ranges:
             raise ValueError(f"randomize: {name} is given two ranges; give each field one")
-        if not isinstance(bounds, list | tuple | np.ndarray) or np.shape(bounds) != (2,):
+        if not _is_pair(bounds):
             raise ValueError(f"{name}: expected a range (low, high), got {shown(bounds)}")
         # Each a number as given, finite (first: NaN is neither above nor below).
         low, high = (check_number(name, bound) for bound in bounds)
@@ -270,6 +270,15 @@ def check_ranges(randomize: Any, env_params: Any) -> Ranges:
         check_representable(f"{name} (high - low)", in_float64(np.subtract, high, low), floats)
         ranges[name] = (low, high)
     return tuple(sorted(ranges.items()))
+
+
+def _is_pair(bounds: Any) -> bool:
+    """Whether `bounds` holds two single values: a list or tuple of two that are no sequences
+    (numpy could not make an array of `((0.4,), 0.6)`), or a numpy or JAX array of shape (2,)."""
+    if isinstance(bounds, list | tuple):
+        return len(bounds) == 2 and all(
+            not isinstance(bound, list | tuple) and np.ndim(bound) == 0 for bound in bounds)
+    return isinstance(bounds, np.ndarray | jax.Array) and bounds.shape == (2,)
 
 
 # Optimizers that update each parameter from its own history alone: the fast path steps a run's

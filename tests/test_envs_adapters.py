@@ -188,6 +188,18 @@ def test_make_vec_steps_and_autoresets_as_gymnasiums(name):
     assert truncations >= num_envs * 3
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.uint32, np.int8, np.int64])
+def test_acrobot_steps_an_action_of_any_integer_type_as_gymnasiums(dtype):
+    """Gymnasium looks the torque up (`AVAIL_TORQUE[action]`): an unsigned 0 is -1, where
+    `action - 1` wrapped round to 255."""
+    reference, env = _pair("Acrobot-v1")
+    for action in range(3):
+        reference.reset(seed=action)
+        env.reset(seed=action)
+        _assert_same_step(env.step(dtype(action)), reference.step(dtype(action)))
+        np.testing.assert_array_equal(env.state, reference.state)
+
+
 def test_bad_arguments():
     env = adapters.ClassicControlEnv(acrobot.V1)
     with pytest.raises(gymnasium.error.ResetNeeded):

@@ -206,6 +206,12 @@ def test_wrap_is_gymnasiums_loop():
                                atol=1e-9)
 
 
+def test_torque_noise_may_be_a_numpy_number():
+    """A numpy float is a number (it was refused as not one); it steps as the Python float."""
+    assert acrobot.make_params(torque_noise_max=np.float32(0.25)).torque_noise_max == 0.25
+    assert acrobot.make_params(torque_noise_max=np.int64(0)).torque_noise_max == 0
+
+
 def test_torque_noise_adds_a_uniform_torque():
     # With noise m, action 2 pushes with 1 + noise: the step equals a noiseless one whose torque
     # is 1 + noise, and each state carries its next key.
@@ -269,12 +275,29 @@ CAR_STATE = mountain_car.MountainCarState.from_array(np.array([-0.5, 0.0]))
 PENDULUM_STATE = pendulum.PendulumState.from_array(np.zeros(2))
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.uint32, jnp.uint8, np.int8, bool])
+@pytest.mark.parametrize("module, state", [(acrobot, ACROBOT_STATE), (mountain_car, CAR_STATE)])
+def test_an_action_of_any_integer_dtype_pushes_as_the_int(module, state, dtype):
+    """An unsigned 0 less 1 wrapped round to 255: action 0 pushed the other way, 255 times."""
+    env_params = module.PRESETS[module.NAME]
+    for action in range(2 if dtype is bool else 3):
+        expected = module.step(state, action, env_params)
+        got = module.step(state, dtype(action), env_params)
+        np.testing.assert_array_equal(got[0], expected[0])
+        stepped = jax.jit(module.step)(state, jnp.asarray(action, dtype), env_params)
+        np.testing.assert_array_equal(stepped[0], jax.jit(module.step)(state, action,
+                                                                       env_params)[0])
+
+
+
 @pytest.mark.parametrize("make, match", [
     (lambda: acrobot.make_params("Acrobot-v0"), "env"),
     (lambda: acrobot.make_params(dt=0.0), "dt"),
     (lambda: acrobot.make_params(link_moi=-1.0), "link_moi"),
     (lambda: acrobot.make_params(book_or_nips="paper"), "book_or_nips"),
     (lambda: acrobot.make_params(torque_noise_max=-0.1), "torque_noise_max"),
+    (lambda: acrobot.make_params(torque_noise_max=True), "torque_noise_max"),  # was noise 1
+    (lambda: acrobot.make_params(torque_noise_max=np.bool_(True)), "torque_noise_max"),
     (lambda: acrobot.make_params(reset_low=0.2), "reset_low"),
     (lambda: acrobot.check_params(mountain_car.V0), "env_params"),
     (lambda: mountain_car.make_params(min_position=1.0), "min_position"),

@@ -379,6 +379,28 @@ def test_stratified_improvement_interval_misses_equal_settings_on_paired_tasks()
     (lambda: stats.performance_profile([1.0, 2.0], paired=1), "paired"),
     (lambda: stats.improvement_ci([1.0, 2.0], [1e308, 0.0]), "y: magnitudes must be at most"),
     (lambda: stats.seeds_needed([[1.0, 2.0], [-1e308, 1.0]]), r"scores\[1\]: magnitudes"),
+    # Not numbers, or not one array: numpy's own messages, which named no argument.
+    (lambda: stats.iqm(["1", "2"]), "scores: must be a number"),
+    (lambda: stats.mean([1j, 2.0]), "scores: must be a number"),
+    (lambda: stats.median([True, False]), "scores: must be a number"),
+    (lambda: stats.iqm([[1.0, 2.0], [3.0]]), "scores: expected .* rows of other lengths"),
+    (lambda: stats.iqm(np.ones((4, 2)), axis=1.0), r"axis: must be an integer in \[-2, 2\)"),
+    (lambda: stats.mean(np.ones((4, 2)), axis=True), "axis: must be an integer"),
+    (lambda: stats.median(np.ones(4), axis=2), "axis: must be an integer"),
+    (lambda: stats.optimality_gap([1.0], "195"), "target: must be a number"),
+    (lambda: stats.optimality_gap([1.0], True), "target: must be a number"),
+    (lambda: stats.optimality_gap([1.0], None), "target: must be a number"),
+    (lambda: stats.bootstrap_ci([1.0, 2.0], ["iqm"]), "statistic: expected 'iqm'"),
+    (lambda: stats.bootstrap_ci([1.0, 2.0], lambda s, axis: s), "statistic: expected a function "
+     r"f\(scores, axis\) giving one number per row"),
+    (lambda: stats.performance_profile([1.0, 2.0], taus=[np.nan, 1.0]), "taus: must be finite"),
+    (lambda: stats.performance_profile([1.0, 2.0], taus=["a"]), "taus: must be a number"),
+    (lambda: stats.iqm_curve(np.ones((4, 2)), iterations=["a", "b"]), "iterations: must be a"),
+    # Settings of other tasks: P(improvement) names the setting, seeds_needed compared them.
+    (lambda: stats.improvement_matrix([np.ones((3, 2)), np.ones((3, 3))]),
+     r"scores\[1\]: expected the tasks of scores\[0\], \(2,\), got shape \(3, 3\)"),
+    (lambda: stats.seeds_needed([np.ones((3, 2)), np.ones((3, 3))]),
+     r"scores\[1\]: expected the tasks of scores\[0\]"),
 ])
 def test_bad_input_is_one_line_naming_the_argument(call, word):
     with pytest.raises(ValueError, match=f"^{word}") as error:

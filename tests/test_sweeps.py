@@ -241,6 +241,28 @@ def test_domain_randomisation_trains_and_bad_ranges_are_named():
             TrainConfig(randomize=ranges)
 
 
+@pytest.mark.parametrize("grid", [{"length": [0.5, 1.0]}, [{"masspole": 0.2}, {"length": 1.0}]])
+def test_a_grid_of_a_randomised_field_is_refused_before_compiling(grid):
+    """Training draws the field per episode: every setting trained alike, the grid ignored."""
+    config = dataclasses.replace(PHYSICS_CONFIG, randomize={"length": (0.25, 2.0)})
+    with xla_compiles() as compiled, pytest.raises(
+            ValueError, match="^grid: varies length, which the config's randomize draws per "
+                              "episode in place of the grid's values; vary one or the other, or "
+                              "evaluate each setting's values with eval_physics='base'$"):
+        sweep(config, seeds=range(2), grid=grid, show_progress=False)
+    assert not compiled
+
+
+def test_a_grid_of_a_randomised_field_evaluates_each_value_at_the_base_physics():
+    config = dataclasses.replace(PHYSICS_CONFIG, iterations=1, max_steps=200,
+                                 randomize={"length": (0.25, 2.0)})
+    swept = sweep(config, seeds=range(1), grid={"length": [0.3, 1.5]}, eval_episodes=3,
+                  eval_physics="base", show_progress=False)
+    params = swept.policy_params["params"]["Dense_0"]["kernel"]
+    np.testing.assert_array_equal(params[0], params[1])  # trained alike: the draws, not the grid
+    assert not np.array_equal(swept.eval_greedy_returns[0], swept.eval_greedy_returns[1])
+
+
 def test_held_out_episodes_are_each_runs_own_alike_alone_and_in_a_sweep():
     config = dataclasses.replace(PHYSICS_CONFIG, iterations=5)
     many = sweep(config, seeds=range(6), grid={"learning_rate": [0.01, 0.03]}, eval_episodes=7,

@@ -69,6 +69,9 @@ TOO_SMALL = r"must be at least 1\.175e-38 \(the smallest normal float32\)"
     ("randomize", {"length": {0.3, 0.6}}, "length: expected a range"),  # in no given order
     ("randomize", {"length": ("0.25", "2")}, "length: must be a number, got '0.25'$"),
     ("randomize", {"length": (True, 2)}, "length: must be a number, got True$"),
+    # Ragged: numpy's own message, which named no field.
+    ("randomize", {"length": ((0.3,), 0.6)}, "length: expected a range \\(low, high\\), got "
+                                            "\\(\\(0.3,\\), 0.6\\)$"),
     ("randomize", [("length", (0.3, 0.6)), ("length", (0.4, 0.5))],
      "randomize: length is given two ranges; give each field one$"),
 ])
@@ -130,6 +133,13 @@ def test_physics_are_checked_in_jax_default_float_and_hyperparameters_in_float32
 def test_randomize_takes_lists_as_pairs_and_keeps_them_sorted():
     config = TrainConfig(randomize=[["tau", [0.01, 0.02]], ("length", (0.3, 0.6))])
     assert config.randomize == (("length", (0.3, 0.6)), ("tau", (0.01, 0.02)))
+
+
+def test_randomize_takes_a_range_as_a_numpy_or_jax_array_alike():
+    """A JAX array of two was refused as no range, where numpy's was taken."""
+    ranges = [TrainConfig(randomize={"length": array([0.25, 0.5])}).randomize
+              for array in (np.array, jnp.array)]
+    assert ranges[0] == ranges[1] == (("length", (0.25, 0.5)),)
 
 
 @pytest.mark.parametrize("grid, match", [

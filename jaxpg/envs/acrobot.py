@@ -25,13 +25,14 @@ from typing import TYPE_CHECKING, Any, Self
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from jaxpg import rng
 from jaxpg.envs import common
 from jaxpg.envs.cartpole import sincos
 from jaxpg.types import ArrayLike, Observation, PRNGKey
-from jaxpg.validation import check_choice
+from jaxpg.validation import check_choice, shown
 
 NAME = "Acrobot-v1"
 OBS_SIZE = 6  # cos theta1, sin theta1, cos theta2, sin theta2, dtheta1, dtheta2
@@ -172,8 +173,11 @@ def check_params(env_params: AcrobotParams) -> None:
     common.check_below(env_params, "reset_low", "reset_high")
     check_choice("book_or_nips", env_params.book_or_nips, DYNAMICS)
     noise = env_params.torque_noise_max
-    if not (isinstance(noise, int | float) and math.isfinite(noise) and noise >= 0):
-        raise ValueError(f"torque_noise_max: must be a finite number >= 0, got {noise!r}")
+    # A Python or numpy number (static: hashed, not traced), not a bool: True would be noise 1.
+    is_number = isinstance(noise, int | float | np.integer | np.floating) and not isinstance(
+        noise, bool)
+    if not (is_number and math.isfinite(noise) and noise >= 0):
+        raise ValueError(f"torque_noise_max: must be a finite number >= 0, got {shown(noise)}")
 
 
 def observe(state: AcrobotState) -> Observation:
@@ -224,7 +228,7 @@ def step(state: AcrobotState, action: ArrayLike, env_params: AcrobotParams
     common.check_discrete_action(action, NUM_ACTIONS, "0 (torque -1), 1 (0) or 2 (+1)")
     p = env_params
     dtype = state.theta1.dtype
-    torque = (jnp.asarray(action) - 1).astype(dtype) * p.torque
+    torque = common.centred_action(action, dtype) * p.torque
     key = state.key
     if p.torque_noise_max > 0:
         key, noise = torque_noise(key, p.torque_noise_max, dtype)

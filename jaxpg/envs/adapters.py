@@ -126,8 +126,10 @@ def _wrap_angle(x: Any) -> Any:
 
 def _acrobot_step(state: HostArray, action: Action, p: Any, np_random: np.random.Generator
                   ) -> tuple[HostArray, float, bool]:
-    """Gymnasium's `AcrobotEnv.step`: (state float64 `[4]`, reward, terminated)."""
-    torque = (action - 1) * p.torque
+    """Gymnasium's `AcrobotEnv.step`: (state float64 `[4]`, reward, terminated). Its torque is
+    a Python number whatever the action's type, as Gymnasium's `AVAIL_TORQUE[action]` (an
+    unsigned 0 less 1 would wrap round)."""
+    torque = (int(action) - 1) * p.torque
     if p.torque_noise_max > 0:
         torque += np_random.uniform(-p.torque_noise_max, p.torque_noise_max)
     values = tuple(np.asarray(state, np.float64))

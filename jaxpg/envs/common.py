@@ -122,6 +122,15 @@ def check_discrete_action(action: ArrayLike, num_actions: int, meaning: str) -> 
         raise ValueError(f"action: must be {meaning}, got {value}")
 
 
+def centred_action(action: ArrayLike, dtype: Any) -> jax.Array:
+    """Actions 0, 1, 2 as -1, 0, +1 in `dtype`, the direction each pushes, of any integer dtype.
+
+    The action is converted before 1 is taken away: an unsigned 0 less 1 would wrap round to its
+    dtype's largest value (255 for uint8), a push of that size the other way.
+    """
+    return jnp.asarray(action).astype(dtype) - 1
+
+
 def check_continuous_action(action: ArrayLike) -> None:
     """In eager use, a ValueError unless every action is a finite number (any finite value is
     clipped to the action's range)."""

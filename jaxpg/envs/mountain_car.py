@@ -192,7 +192,7 @@ def step(state: MountainCarState, action: ArrayLike, env_params: MountainCarPara
     common.check_discrete_action(action, NUM_ACTIONS, "0 (push left), 1 (none) or 2 (push right)")
     p = env_params
     dtype = state.position.dtype
-    push = (jnp.asarray(action) - 1).astype(dtype) * p.force
+    push = common.centred_action(action, dtype) * p.force
     position, velocity, terminated = move(
         state.position, state.velocity, push + hill_cos(state.position) * (-p.gravity), p)
     state = MountainCarState(position.astype(dtype), velocity.astype(dtype), state.time + 1)
