@@ -46,6 +46,7 @@ It is written with `atomic_files.atomic_write`: a crash mid-write leaves the pre
 import dataclasses
 import functools
 import hashlib
+import operator
 import os
 import pathlib
 import warnings
@@ -69,7 +70,7 @@ from jaxpg import (
     train_config,
 )
 from jaxpg.types import Params
-from jaxpg.validation import check_int, check_number
+from jaxpg.validation import check_int, check_number, shown
 
 if TYPE_CHECKING:
     from jaxpg import sweeps
@@ -138,16 +139,22 @@ def save(
       ValueError: for an empty `path`, one of something else than a regular file (a device, a
         FIFO: `atomic_files.check_replaceable`) or one inside a folder of jaxpg's results (a
         `jaxpg train` or `sweep` folder: `atomic_files.check_outside_results`), a `config` that is
-        no `TrainConfig`, `metrics` that are no `Metrics`, a whole `TrainResult` given as
-        parameters, parameters of other shapes than `config`'s network's (or its loss's
-        critic's) or not float32 or float64 (which `load` refuses), critic parameters for a loss
-        without a critic, or a config field that cannot be saved.
+        no `TrainConfig`, `metrics` that are no `Metrics` or of other iterations than
+        `config.iterations`, a whole `TrainResult` given as parameters, parameters of other
+        shapes than `config`'s network's (or its loss's critic's) or not float32 or float64
+        (which `load` refuses), critic parameters for a loss without a critic, or a config field
+        that cannot be saved.
       OSError: where the file cannot be created (`atomic_files.atomic_path`).
     """
     if not isinstance(config, train_config.TrainConfig):
         raise ValueError(f"config: expected a TrainConfig, got {type(config).__name__}")
     if metrics is not None and not isinstance(metrics, iteration.Metrics):
         raise ValueError(f"metrics: expected a Metrics or None, got {type(metrics).__name__}")
+    lengths = sorted({np.shape(leaf)[-1] if np.ndim(leaf) else 0
+                      for leaf in jax.tree.leaves(metrics)})
+    if lengths and lengths != [config.iterations]:
+        raise ValueError(f"metrics: expected {config.iterations} iterations (config's) in every "
+                         f"field, got {', '.join(map(str, lengths))}")
     _check_params_match(policy_params, config, "policy_params", _grid_shape(runs))
     _check_floats(_state_dict(policy_params), "policy_params")  # what `load` reads back
     if critic_params is not None:
@@ -586,10 +593,11 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
     if loaded.grid is None:
         raise ValueError("run: the checkpoint holds one run, not a sweep's")
     grid_shape = (len(loaded.grid), len(cast(np.ndarray, loaded.seeds)))  # a sweep's: both set
-    if not all(isinstance(i, int | np.integer) and not isinstance(i, bool) and 0 <= i < n
-               for i, n in zip((g, s), grid_shape)):
+    indices = [_index(i) for i in (g, s)]
+    if not all(i is not None and 0 <= i < n for i, n in zip(indices, grid_shape)):
         raise ValueError(f"run: expected g in [0, {grid_shape[0]}) and s in "
-                         f"[0, {grid_shape[1]}), got {g},{s}")
+                         f"[0, {grid_shape[1]}), integers, got g={shown(g)}, s={shown(s)}")
+    g, s = cast(list[int], indices)
     setting = loaded.grid[g]
     physics = {name: setting[name] for name in loaded.config.physics if name in setting}
     hyperparams: dict[str, Any] = {
@@ -606,6 +614,17 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
 
 
 _FLOAT_DTYPES = (np.float32, np.float64)
+
+
+def _index(value: Any) -> int | None:
+    """`value` as an index (a Python or numpy integer, or an integer array of no axes); None for
+    anything else, bools too."""
+    if isinstance(value, bool | np.bool_):
+        return None
+    try:
+        return operator.index(value)
+    except TypeError:
+        return None
 
 
 def _check_floats(tree: object, name: str) -> None:

@@ -68,6 +68,16 @@ def test_round_trip_keeps_params_config_metrics_and_version(tmp_path):
     )
 
 
+def test_metrics_of_other_iterations_than_the_configs_are_refused(tmp_path):
+    metrics = _metrics()
+    for other in (dataclasses.replace(CONFIG, iterations=CONFIG.iterations + 1),
+                  dataclasses.replace(CONFIG, iterations=1)):
+        with pytest.raises(ValueError, match=rf"^metrics: expected {other.iterations} iterations "
+                                             rf"\(config's\) in every field, got 3$"):
+            checkpoint.save(tmp_path, _params(other), other, metrics)
+    assert not list(tmp_path.iterdir())
+
+
 def test_preset_env_no_metrics_and_directories(tmp_path):
     config = TrainConfig(env="CartPole-v0")
     path = checkpoint.save(tmp_path, _params(config), config)  # a directory: DIR/policy.msgpack
@@ -381,8 +391,13 @@ def test_a_sweeps_run_takes_its_physics_and_bad_runs_are_refused(tmp_path):
                            runs={"grid": grid, "seeds": [4, 7]})
     run = checkpoint.select_run(checkpoint.load(path), 0, 1)
     assert run.config.env == CONFIG.env.replace(length=1.0)
-    for g, s in [(1, 0), (0, 2), (-1, 0), (0, 1.0), (True, 0)]:  # indices: integers in range
-        with pytest.raises(ValueError, match=r"^run: expected g in \[0, 1\) and s in \[0, 2\)"):
+    for g, s in [(np.array(0), np.int64(1)), (np.int32(0), np.array([1])[0])]:  # numpy indices
+        picked = checkpoint.select_run(checkpoint.load(path), g, s)
+        assert picked.config == run.config
+        jax.tree.map(np.testing.assert_array_equal, picked.policy_params, run.policy_params)
+    for g, s in [(1, 0), (0, 2), (-1, 0), (0, 1.0), (True, 0), (np.True_, 0), (np.array([0]), 0)]:
+        with pytest.raises(ValueError, match=r"^run: expected g in \[0, 1\) and s in \[0, 2\), "
+                                             r"integers, got g=.*, s=.*$"):
             checkpoint.select_run(checkpoint.load(path), g, s)
     with pytest.raises(ValueError, match="^run: the checkpoint holds one run"):
         checkpoint.select_run(checkpoint.load(checkpoint.save(tmp_path, _params(CONFIG), CONFIG)),
