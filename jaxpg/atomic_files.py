@@ -509,9 +509,7 @@ def atomic_path(path: StrPath) -> Iterator[pathlib.Path]:
     try:
         fd = os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
     except OSError as error:  # named by `path`'s folder, not by the temporary file's name
-        named = type(error)(f"path: cannot write in {path.parent} ({error.strerror})")
-        named.errno = error.errno
-        raise named from None
+        raise type(error)(error.errno, error.strerror, str(path.parent)) from None
     try:
         if fcntl is not None:
             fcntl.flock(fd, fcntl.LOCK_EX)

@@ -44,9 +44,10 @@ from jaxpg.validation import check_int
 STEP_FLOATS = 15
 UNIT_FLOATS = 4
 # Per step of an episode and per epoch, with several updates an iteration: the epochs' shuffled
-# minibatches, 38 bytes on CartPole in float32 by `memory_analysis()` (up to 59 with PPO on
-# Acrobot's 6 observations; 32 to 64 epochs of 10 to 40 episodes), about 9.5 floats.
-EPOCH_STEP_FLOATS = 12
+# minibatches, by `memory_analysis()` (32 to 64 epochs of 10 to 40 episodes, float32) 38 bytes on
+# CartPole, 9.5 floats, and up to 59 with PPO on Acrobot, 14.75 floats of which the 2 observations
+# beyond CartPole's 4 are counted apart: 13 covers both.
+EPOCH_STEP_FLOATS = 13
 PARAMETER_COPIES = 5  # the parameters, their gradient, two moments and the trained copy returned
 METRIC_FLOATS = 16  # six metrics and up to two of a loss's own, kept twice (trained, returned)
 CALL_BYTES = 6000  # the host's bookkeeping of one call (docs/performance.md)

@@ -46,7 +46,6 @@ It is written with `atomic_files.atomic_write`: a crash mid-write leaves the pre
 import dataclasses
 import functools
 import hashlib
-import operator
 import os
 import pathlib
 import warnings
@@ -386,7 +385,8 @@ def _check_params_match(
     The shapes are compared after the leading axes `lead` (a sweep's `(G, S)`).
     """
     if hasattr(params, "policy_params"):  # a `TrainResult` given whole
-        raise ValueError(f"{where}: got a {type(params).__name__}; pass its .{where}")
+        raise ValueError(f"{where}: expected parameters, got a {type(params).__name__}; pass "
+                         f"its .{where}")
     critic = where == "critic_params"
     network = losses.critic(config.loss) if critic else config.network
     if network is None:
@@ -593,11 +593,10 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
     if loaded.grid is None:
         raise ValueError("run: the checkpoint holds one run, not a sweep's")
     grid_shape = (len(loaded.grid), len(cast(np.ndarray, loaded.seeds)))  # a sweep's: both set
-    indices = [_index(i) for i in (g, s)]
-    if not all(i is not None and 0 <= i < n for i, n in zip(indices, grid_shape)):
+    if not all(isinstance(i, int | np.integer) and not isinstance(i, bool) and 0 <= i < n
+               for i, n in zip((g, s), grid_shape)):
         raise ValueError(f"run: expected g in [0, {grid_shape[0]}) and s in "
                          f"[0, {grid_shape[1]}), integers, got g={shown(g)}, s={shown(s)}")
-    g, s = cast(list[int], indices)
     setting = loaded.grid[g]
     physics = {name: setting[name] for name in loaded.config.physics if name in setting}
     hyperparams: dict[str, Any] = {
@@ -614,17 +613,6 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
 
 
 _FLOAT_DTYPES = (np.float32, np.float64)
-
-
-def _index(value: Any) -> int | None:
-    """`value` as an index (a Python or numpy integer, or an integer array of no axes); None for
-    anything else, bools too."""
-    if isinstance(value, bool | np.bool_):
-        return None
-    try:
-        return operator.index(value)
-    except TypeError:
-        return None
 
 
 def _check_floats(tree: object, name: str) -> None:

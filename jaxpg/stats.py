@@ -528,20 +528,15 @@ def _interval(replicates: np.ndarray, confidence: float) -> tuple[Any, Any]:
 
 def _check_scores(scores: npt.ArrayLike, name: str = "scores", axis: int | None = None
                   ) -> np.ndarray:
-    """`scores` as a float64 `[R]` or `[R, T]` array; a ValueError unless an array of numbers
-    (not bools, strings or lists of other lengths), non-empty and finite, and of magnitudes at
-    most `_max_score` of the scores that one aggregate takes together: all of them, or those
-    along `axis`, an integer naming one of their axes."""
-    try:
-        scores = np.asarray(scores)
-    except ValueError:  # numpy's word for lists of other lengths
-        raise ValueError(f"{name}: expected [runs] or [runs, tasks] numbers, got rows of other "
-                         f"lengths: {shown(scores)}") from None
+    """`scores` as a float64 `[R]` or `[R, T]` array; a ValueError unless an array of finite
+    numbers (`check_finite`: not bools, strings or rows of other lengths), non-empty, and of
+    magnitudes at most `_max_score` of the scores that one aggregate takes together: all of them,
+    or those along `axis`, an integer naming one of their axes."""
+    scores = check_finite(name, scores).astype(np.float64)
     if scores.ndim not in (1, 2):
         raise ValueError(f"{name}: expected [runs] or [runs, tasks], got shape {scores.shape}")
     if scores.size == 0:
         raise ValueError(f"{name}: empty, expected at least one score")
-    scores = check_finite(name, scores).astype(np.float64)
     count = scores.size if axis is None else scores.shape[
         check_int("axis", axis, -scores.ndim, scores.ndim)]
     largest, limit = np.abs(scores).max(), _max_score(count)

@@ -97,7 +97,11 @@ def check_finite(name: str, values: Any) -> np.ndarray:
     Returns:
       `values` as a numpy array.
     """
-    array = np.asarray(values)
+    try:
+        array = np.asarray(values)
+    except ValueError:  # numpy's word for nested lists of other lengths
+        raise ValueError(f"{name}: must be numbers in rows of one length, got {shown(values)}"
+                         ) from None
     if array.dtype.kind not in "iuf":
         raise ValueError(f"{name}: must be a number, got {shown(values)}")
     if not np.isfinite(array).all():

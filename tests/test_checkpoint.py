@@ -391,11 +391,11 @@ def test_a_sweeps_run_takes_its_physics_and_bad_runs_are_refused(tmp_path):
                            runs={"grid": grid, "seeds": [4, 7]})
     run = checkpoint.select_run(checkpoint.load(path), 0, 1)
     assert run.config.env == CONFIG.env.replace(length=1.0)
-    for g, s in [(np.array(0), np.int64(1)), (np.int32(0), np.array([1])[0])]:  # numpy indices
+    for g, s in [(np.int32(0), np.int64(1)), (np.int64(0), np.array([1])[0])]:  # numpy integers
         picked = checkpoint.select_run(checkpoint.load(path), g, s)
         assert picked.config == run.config
         jax.tree.map(np.testing.assert_array_equal, picked.policy_params, run.policy_params)
-    for g, s in [(1, 0), (0, 2), (-1, 0), (0, 1.0), (True, 0), (np.True_, 0), (np.array([0]), 0)]:
+    for g, s in [(1, 0), (0, 2), (-1, 0), (0, 1.0), (True, 0), (np.True_, 0), (np.array(0), 0)]:
         with pytest.raises(ValueError, match=r"^run: expected g in \[0, 1\) and s in \[0, 2\), "
                                              r"integers, got g=.*, s=.*$"):
             checkpoint.select_run(checkpoint.load(path), g, s)
@@ -545,7 +545,8 @@ def test_save_refuses_a_critic_the_loss_has_not_other_shapes_or_a_whole_result(t
                         critic_params=_params(WITH_CRITIC))
     whole = jaxpg.TrainResult(_params(WITH_CRITIC), None, None, _critic(WITH_CRITIC))
     for field, given in [("policy_params", (whole, None)), ("critic_params", (None, whole))]:
-        with pytest.raises(ValueError, match=f"^{field}: got a TrainResult; pass its .{field}$"):
+        with pytest.raises(ValueError, match=f"^{field}: expected parameters, got a TrainResult; "
+                                             f"pass its .{field}$"):
             checkpoint.save(tmp_path, given[0] or _params(WITH_CRITIC), WITH_CRITIC,
                             critic_params=given[1])
     # Parameters that `load` would refuse: not saved either.

@@ -208,8 +208,12 @@ def test_wrap_is_gymnasiums_loop():
 
 def test_torque_noise_may_be_a_numpy_number():
     """A numpy float is a number (it was refused as not one); it steps as the Python float."""
-    assert acrobot.make_params(torque_noise_max=np.float32(0.25)).torque_noise_max == 0.25
-    assert acrobot.make_params(torque_noise_max=np.int64(0)).torque_noise_max == 0
+    state = acrobot.AcrobotState.from_array(np.array([0.1, -0.2, 0.3, 0.4]), key=jnp.uint32([1, 2]))
+    for numpy_noise, noise in [(np.float32(0.25), 0.25), (np.int64(0), 0)]:
+        params = acrobot.make_params(torque_noise_max=numpy_noise)
+        assert params.torque_noise_max == noise
+        jax.tree.map(np.testing.assert_array_equal, acrobot.step(state, 2, params),
+                     acrobot.step(state, 2, acrobot.make_params(torque_noise_max=noise)))
 
 
 def test_torque_noise_adds_a_uniform_torque():
@@ -287,7 +291,6 @@ def test_an_action_of_any_integer_dtype_pushes_as_the_int(module, state, dtype):
         stepped = jax.jit(module.step)(state, jnp.asarray(action, dtype), env_params)
         np.testing.assert_array_equal(stepped[0], jax.jit(module.step)(state, action,
                                                                        env_params)[0])
-
 
 
 @pytest.mark.parametrize("make, match", [

@@ -175,6 +175,10 @@ def step(state: MountainCarState, action: ArrayLike, env_params: MountainCarPara
          ) -> tuple[Observation, MountainCarState, jax.Array, jax.Array, jax.Array]:
     """Advances one step; action 0 pushes left, 1 not at all, 2 right.
 
+    An action of any integer dtype pushes as its value says: an unsigned 0 pushes left, where
+    Gymnasium's `(action - 1) * force` wraps it round to 255 pushes right (the
+    `jaxpg/MountainCar-v0` adapter does as Gymnasium does).
+
     Args:
       state: `MountainCarState` with `[...]` leaves.
       action: int `[...]` (or broadcasting against the state), each 0, 1 or 2.
