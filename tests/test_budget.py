@@ -38,7 +38,7 @@ def test_the_estimate_of_a_run_is_near_what_xla_lays_out():
                              "most 200 steps, hidden (5,) needs about"),
     ({"hidden": (4000,) * 1000}, 1, "hidden (4000, 4000, 4000,"),
     ({"iterations": 10**9}, 1, "for 1000000000 iterations"),
-    # Every epoch's shuffled minibatches are laid out at once: about 97 TiB here.
+    # Every epoch's shuffled minibatches are laid out at once: about 95 TiB here.
     ({"epochs": 10**9}, 1, "at most 200 steps in 1000000000 epochs, hidden (5,) needs about"),
     ({}, 2**32, "training 4294967296 runs for"),
 ])
