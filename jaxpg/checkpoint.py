@@ -69,7 +69,7 @@ from jaxpg import (
     train_config,
 )
 from jaxpg.types import Params
-from jaxpg.validation import check_int, check_number, shown
+from jaxpg.validation import check_int, check_number, is_int, shown
 
 if TYPE_CHECKING:
     from jaxpg import sweeps
@@ -593,8 +593,7 @@ def select_run(loaded: Checkpoint, g: int, s: int) -> Checkpoint:
     if loaded.grid is None:
         raise ValueError("run: the checkpoint holds one run, not a sweep's")
     grid_shape = (len(loaded.grid), len(cast(np.ndarray, loaded.seeds)))  # a sweep's: both set
-    if not all(isinstance(i, int | np.integer) and not isinstance(i, bool) and 0 <= i < n
-               for i, n in zip((g, s), grid_shape)):
+    if not all(is_int(i) and 0 <= i < n for i, n in zip((g, s), grid_shape)):
         raise ValueError(f"run: expected g in [0, {grid_shape[0]}) and s in "
                          f"[0, {grid_shape[1]}), integers, got g={shown(g)}, s={shown(s)}")
     setting = loaded.grid[g]

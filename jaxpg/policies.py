@@ -19,7 +19,7 @@ from flax import struct
 
 from jaxpg import distributions, fastmath, runwise, sums
 from jaxpg.types import Action, Observation, Params, PRNGKey
-from jaxpg.validation import check_choice
+from jaxpg.validation import check_choice, is_int
 
 # The shape of each parameter of a `PolicyNetwork`: {"params": {"Dense_i": {"bias", "kernel"}}}.
 ParameterShapes = dict[str, dict[str, dict[str, tuple[int, ...]]]]
@@ -66,7 +66,7 @@ def check_network(hidden: Sequence[int], activation: str) -> None:
     """
     check_choice("activation", activation, ACTIVATIONS)
     if not isinstance(hidden, tuple | list) or any(
-            isinstance(h, bool) or not isinstance(h, int | np.integer) or h < 1 for h in hidden):
+            not is_int(h) or h < 1 for h in hidden):
         raise ValueError(f"hidden: must be a tuple of positive layer sizes (none: a linear "
                          f"policy), got {hidden!r}")
 

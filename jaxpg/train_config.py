@@ -20,6 +20,7 @@ from jaxpg.validation import (
     check_number,
     check_representable,
     in_float64,
+    is_int,
     shown,
 )
 
@@ -309,7 +310,7 @@ def stack(settings: Sequence[Hyperparams]) -> Hyperparams:
 
     def column(*values: Any) -> np.ndarray:
         """One field's values of every run as a numpy `[R]` array."""
-        if isinstance(values[0], int | np.integer) and not isinstance(values[0], bool):
+        if is_int(values[0]):
             return np.asarray(values, np.int32)
         return np.asarray(values, floats)
 

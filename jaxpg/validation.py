@@ -33,6 +33,11 @@ def check_bool(name: str, value: Any) -> bool:
     return bool(value)
 
 
+def is_int(value: Any) -> bool:
+    """Whether `value` is a Python or numpy integer (a bool is not one)."""
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
 def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = None) -> int:
     """`value` as an `int`; a ValueError naming `name` unless it is an integer in range.
 
@@ -45,8 +50,7 @@ def check_int(name: str, value: Any, minimum: int = 1, maximum: int | None = Non
     Returns:
       `value` as a Python `int`.
     """
-    is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
-    if not is_int or value < minimum or (maximum is not None and value >= maximum):
+    if not is_int(value) or value < minimum or (maximum is not None and value >= maximum):
         raise ValueError(f"{name}: must be {_int_range(minimum, maximum)}, got {shown(value)}")
     return int(value)
 
