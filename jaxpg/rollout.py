@@ -122,15 +122,14 @@ def _record(features: jax.Array, action: jax.Array, reward: jax.Array, alive: ja
 
 
 def _transitions(records: jax.Array, discrete: bool) -> Transition:
-    """`Transition` from records `[T, K + 3, E, ...]`; int32 actions if `discrete`."""
-    # Observations are stored features first, each step's K values contiguous for the policy
-    # and for the gradient that reads them back (`[T, K, E]`, which XLA keeps as it is when
-    # a consumer moves the features first again).
-    k = records.shape[1] - 3
-    return Transition(obs=jnp.moveaxis(records[:, :k], 1, -1),
-                      action=records[:, k].astype(jnp.int32) if discrete else records[:, k],
-                      reward=records[:, k + 1],
-                      alive=records[:, k + 2] != 0)
+    """`Transition` from records `[K + 3, T, E, ...]`; int32 actions if `discrete`."""
+    # Stored field first: the gradient reads the observations back features first, `[K, T, E]`,
+    # and each other field is one contiguous array.
+    k = records.shape[0] - 3
+    return Transition(obs=jnp.moveaxis(records[:k], 0, -1),
+                      action=records[k].astype(jnp.int32) if discrete else records[k],
+                      reward=records[k + 1],
+                      alive=records[k + 2] != 0)
 
 
 def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
@@ -172,7 +171,6 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     chunk = min(CHUNK, max_steps)
     num_chunks = -(-max_steps // chunk)
     noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes), repeat=(2, played))
-    steps = np.arange(num_chunks * chunk, dtype=np.int32).reshape(num_chunks, chunk)  # a constant
 
     # The carry is one array, the state's S values and whether the episode ended `[S + 1, E, R]`,
     # and so is a step's record: few kernels per step, which XLA runs in sequence
@@ -183,10 +181,11 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         """The environment's state of values `[S, ...]` after `t` steps of the trajectory."""
         return type(init_state).from_array(jnp.moveaxis(features, 0, -1), init_state.time + t)
 
-    def one_step(carry: jax.Array, step: tuple[jax.Array, jax.Array]
-                 ) -> tuple[jax.Array, jax.Array]:
-        """One step of every episode: (carry `[S + 1, E, ...]`, record `[K + 3, E, ...]`)."""
-        u, t = step
+    def one_step(loop: tuple[jax.Array, jax.Array], step: tuple[jax.Array, jax.Array]
+                 ) -> tuple[tuple[jax.Array, jax.Array], None]:
+        """One step of every episode: the carry `[S + 1, E, ...]`, and its record `[K + 3, E, ...]`
+        written into the records `[K + 3, T, E, ...]` at step `t`."""
+        (carry, records), (u, t) = loop, step
         features, done = carry[:size], carry[size] != 0
         state = state_of(features, t)
         obs = module.observe(state)
@@ -197,57 +196,67 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         record = _record(jnp.moveaxis(obs, -1, 0), action, jnp.where(alive, reward, 0.0), alive)
         next_features = jnp.where(done, features, next_state.to_array(axis=0))
         done = done | terminated | truncated
-        return jnp.concatenate([next_features, done[None].astype(features.dtype)]), record
+        return (jnp.concatenate([next_features, done[None].astype(features.dtype)]),
+                jax.lax.dynamic_update_index_in_dim(records, record, t, 1)), None
 
-    def play_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
-                   ) -> tuple[jax.Array, jax.Array]:
-        """`CHUNK` steps simulated: (carry, records `[CHUNK, K + 3, E, ...]`)."""
-        return jax.lax.scan(one_step, carry, steps)
+    def playing(loop: tuple[jax.Array, jax.Array, jax.Array]) -> jax.Array:
+        """Whether chunk `c` is to be played: some episode has not ended."""
+        c, carry, _ = loop
+        return (c < num_chunks) & ~jnp.all(carry[size] != 0)
 
-    def skip_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
-                   ) -> tuple[jax.Array, jax.Array]:
-        """`CHUNK` masked records of episodes that have all ended, without simulating them."""
-        features = carry[:size]
-        frozen = _record(jnp.moveaxis(module.observe(state_of(features, steps[1][0])), -1, 0),
+    def play_chunk(loop: tuple[jax.Array, jax.Array, jax.Array]
+                   ) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """Chunk `c`'s `CHUNK` steps simulated, their records written."""
+        c, carry, records = loop
+        chunk_steps = (jax.lax.dynamic_index_in_dim(noise, c, keepdims=False),
+                       c * chunk + jnp.arange(chunk, dtype=jnp.int32))
+        return c + 1, *jax.lax.scan(one_step, (carry, records), chunk_steps)[0]
+
+    def write_ended(features: jax.Array, t: jax.Array, records: jax.Array) -> jax.Array:
+        """`records` with step `t` masked, every episode having ended in the state of values
+        `features`: its observation (at the chunk's first step), action 0."""
+        frozen = _record(jnp.moveaxis(module.observe(state_of(features, t - t % chunk)), -1, 0),
                          jnp.zeros(features.shape[1:], jnp.int32),
                          jnp.zeros(features.shape[1:], features.dtype),
                          jnp.zeros(features.shape[1:], bool))
-        return carry, jnp.broadcast_to(frozen, (chunk, *frozen.shape))
-
-    def one_chunk(carry: jax.Array, steps: tuple[jax.Array, jax.Array]
-                  ) -> tuple[jax.Array, jax.Array]:
-        """`play_chunk`, or `skip_chunk` once every episode has ended."""
-        return jax.lax.cond(jnp.all(carry[size] != 0), skip_chunk, play_chunk, carry, steps)
+        return jax.lax.dynamic_update_index_in_dim(records, frozen, t, 1)
 
     features = init_state.to_array(axis=0)
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
-    # (scan's stubs type each slice of `xs` as `xs` itself: numpy steps, sliced as JAX arrays.)
-    _, records = jax.lax.scan(one_chunk, carry, (noise, steps))  # type: ignore[arg-type]
-    records = records.reshape(num_chunks * chunk, *records.shape[2:])[:max_steps, :, :num_episodes]
-    k = records.shape[1] - 3
-    action, alive = records[:, k], records[:, k + 2] != 0
+    # Every step writes its record in place, field first: `[K + 3, T, E, ...]`. The chunks after
+    # every episode ended are not simulated: their steps are written masked.
+    k = jax.eval_shape(module.observe, init_state).shape[-1]
+    records = jnp.zeros((k + 3, num_chunks * chunk, *features.shape[1:]), features.dtype)
+    played_chunks, carry, records = jax.lax.while_loop(
+        playing, play_chunk, (jnp.int32(0), carry, records))
+    records = jax.lax.fori_loop(played_chunks * chunk, num_chunks * chunk,
+                                functools.partial(write_ended, carry[:size]), records)
+    records = records[:, :max_steps, :num_episodes]
+    action, alive = records[k], records[k + 2] != 0
     if module is cartpole:  # rewards and alive steps: whole numbers, summed exactly
-        returns, alive_steps = _over_time(records[:, k + 1:])
+        returns, alive_steps = _over_time(records[k + 1:], axis=1)
         returns = returns.astype(records.dtype)
     else:  # any rewards, summed in a fixed order, a run alike alone and beside others
-        returns, alive_steps = sums.invariant_sum(records[:, k + 1], 0), _over_time(alive)
+        returns, alive_steps = sums.invariant_sum(records[k + 1], 0), _over_time(alive)
     invalid = jnp.any(alive & outside_actions(action, module), axis=(0, 1))
     return Episodes(_transitions(records, discrete), returns, alive_steps, invalid)
 
 
-def _over_time(values: jax.Array) -> jax.Array:
-    """`values` `[T, ...]` summed over time, one step after another, as int32 (for whole numbers).
+def _over_time(values: jax.Array, axis: int = 0) -> jax.Array:
+    """`values` summed over their time `axis`, one step after another, as int32 (for whole
+    numbers).
 
-    A loop, which XLA compiles whole, rather than its reduction over the leading axis: as a
-    float sum XLA hands that to a library call, which splits the training program's loop, and
-    as an integer sum it runs slower than the loop (docs/performance.md).
+    A loop, which XLA compiles whole, rather than its reduction over that axis: as a float sum
+    XLA hands that to a library call, which splits the training program's loop, and as an integer
+    sum it runs slower than the loop (docs/performance.md).
     """
-    def add(total: jax.Array, row: jax.Array) -> tuple[jax.Array, None]:
-        """`total` with the next step's `row` added."""
-        return total + row.astype(total.dtype), None
+    def add(t: jax.Array, total: jax.Array) -> jax.Array:
+        """`total` with step `t`'s values added."""
+        return total + jax.lax.dynamic_index_in_dim(values, t, axis, keepdims=False).astype(
+            total.dtype)
 
-    total, _ = jax.lax.scan(add, jnp.zeros(values.shape[1:], jnp.int32), values)
-    return total
+    shape = values.shape[:axis] + values.shape[axis + 1:]
+    return jax.lax.fori_loop(0, values.shape[axis], add, jnp.zeros(shape, jnp.int32))
 
 
 def check_actions(action: ArrayLike, obs: ArrayLike, discrete: bool = True) -> None:
