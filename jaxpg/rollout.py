@@ -112,24 +112,35 @@ def _select(done: jax.Array, old: _Tree, new: _Tree) -> _Tree:
         old, new)
 
 
+# A step's record, or the records of every step `[..., T, E, ...]`: the observation's K features
+# `[K, ...]`, and its outcome `[3, ...]` (action, reward, alive, as floats).
+_Record = tuple[jax.Array, jax.Array]
+
+
 def _record(features: jax.Array, action: jax.Array, reward: jax.Array, alive: jax.Array
-            ) -> jax.Array:
-    """One step's transition as one array `[K + 3, E, ...]`: the observation's K features,
-    action, reward, alive."""
+            ) -> _Record:
+    """One step's transition: (the observation's K features `[K, E, ...]`, action, reward and
+    alive `[3, E, ...]`)."""
     dtype = features.dtype
-    return jnp.concatenate(
-        [features, jnp.stack([action.astype(dtype), reward.astype(dtype), alive.astype(dtype)])])
+    return features, jnp.stack([action.astype(dtype), reward.astype(dtype), alive.astype(dtype)])
 
 
-def _transitions(records: jax.Array, discrete: bool) -> Transition:
-    """`Transition` from records `[K + 3, T, E, ...]`; int32 actions if `discrete`."""
+def _transitions(records: _Record, discrete: bool) -> Transition:
+    """`Transition` from records `[K, T, E, ...]` and `[3, T, E, ...]`; int32 actions if
+    `discrete`."""
     # Stored field first: the gradient reads the observations back features first, `[K, T, E]`,
     # and each other field is one contiguous array.
-    k = records.shape[0] - 3
-    return Transition(obs=jnp.moveaxis(records[:k], 0, -1),
-                      action=records[k].astype(jnp.int32) if discrete else records[k],
-                      reward=records[k + 1],
-                      alive=records[k + 2] != 0)
+    features, outcome = records
+    return Transition(obs=jnp.moveaxis(features, 0, -1),
+                      action=outcome[0].astype(jnp.int32) if discrete else outcome[0],
+                      reward=outcome[1],
+                      alive=outcome[2] != 0)
+
+
+def _written(records: _Record, record: _Record, t: jax.Array) -> _Record:
+    """`records` `[..., T, E, ...]` with step `t`'s `record` `[..., E, ...]` written in place."""
+    return jax.tree.map(lambda r, x: jax.lax.dynamic_update_index_in_dim(r, x, t, 1), records,
+                        record)
 
 
 def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
@@ -181,10 +192,10 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         """The environment's state of values `[S, ...]` after `t` steps of the trajectory."""
         return type(init_state).from_array(jnp.moveaxis(features, 0, -1), init_state.time + t)
 
-    def one_step(loop: tuple[jax.Array, jax.Array], step: tuple[jax.Array, jax.Array]
-                 ) -> tuple[tuple[jax.Array, jax.Array], None]:
-        """One step of every episode: the carry `[S + 1, E, ...]`, and its record `[K + 3, E, ...]`
-        written into the records `[K + 3, T, E, ...]` at step `t`."""
+    def one_step(loop: tuple[jax.Array, _Record], step: tuple[jax.Array, jax.Array]
+                 ) -> tuple[tuple[jax.Array, _Record], None]:
+        """One step of every episode: the carry `[S + 1, E, ...]`, and its record written into
+        the records at step `t`."""
         (carry, records), (u, t) = loop, step
         features, done = carry[:size], carry[size] != 0
         state = state_of(features, t)
@@ -197,66 +208,69 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         next_features = jnp.where(done, features, next_state.to_array(axis=0))
         done = done | terminated | truncated
         return (jnp.concatenate([next_features, done[None].astype(features.dtype)]),
-                jax.lax.dynamic_update_index_in_dim(records, record, t, 1)), None
+                _written(records, record, t)), None
 
-    def playing(loop: tuple[jax.Array, jax.Array, jax.Array]) -> jax.Array:
+    def playing(loop: tuple[jax.Array, jax.Array, _Record]) -> jax.Array:
         """Whether chunk `c` is to be played: some episode has not ended."""
         c, carry, _ = loop
         return (c < num_chunks) & ~jnp.all(carry[size] != 0)
 
-    def play_chunk(loop: tuple[jax.Array, jax.Array, jax.Array]
-                   ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    def play_chunk(loop: tuple[jax.Array, jax.Array, _Record]
+                   ) -> tuple[jax.Array, jax.Array, _Record]:
         """Chunk `c`'s `CHUNK` steps simulated, their records written."""
         c, carry, records = loop
         chunk_steps = (jax.lax.dynamic_index_in_dim(noise, c, keepdims=False),
                        c * chunk + jnp.arange(chunk, dtype=jnp.int32))
         return c + 1, *jax.lax.scan(one_step, (carry, records), chunk_steps)[0]
 
-    def write_ended(features: jax.Array, t: jax.Array, records: jax.Array) -> jax.Array:
+    def write_ended(features: jax.Array, t: jax.Array, records: _Record) -> _Record:
         """`records` with step `t` masked, every episode having ended in the state of values
         `features`: its observation (at the chunk's first step), action 0."""
         frozen = _record(jnp.moveaxis(module.observe(state_of(features, t - t % chunk)), -1, 0),
                          jnp.zeros(features.shape[1:], jnp.int32),
                          jnp.zeros(features.shape[1:], features.dtype),
                          jnp.zeros(features.shape[1:], bool))
-        return jax.lax.dynamic_update_index_in_dim(records, frozen, t, 1)
+        return _written(records, frozen, t)
 
     features = init_state.to_array(axis=0)
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
-    # Every step writes its record in place, field first: `[K + 3, T, E, ...]`. The chunks after
-    # every episode ended are not simulated: their steps are written masked.
+    # Every step writes its record in place, field first: `[K, T, E, ...]` and `[3, T, E, ...]`.
+    # The chunks after every episode ended are not simulated: their steps are written masked.
     k = jax.eval_shape(module.observe, init_state).shape[-1]
-    records = jnp.zeros((k + 3, num_chunks * chunk, *features.shape[1:]), features.dtype)
+    shape = (num_chunks * chunk, *features.shape[1:])
+    records = (jnp.zeros((k, *shape), features.dtype), jnp.zeros((3, *shape), features.dtype))
     played_chunks, carry, records = jax.lax.while_loop(
         playing, play_chunk, (jnp.int32(0), carry, records))
     records = jax.lax.fori_loop(played_chunks * chunk, num_chunks * chunk,
                                 functools.partial(write_ended, carry[:size]), records)
-    records = records[:, :max_steps, :num_episodes]
-    action, alive = records[k], records[k + 2] != 0
+    records = jax.tree.map(lambda r: r[:, :max_steps, :num_episodes], records)
+    outcome = records[1]
+    action, alive = outcome[0], outcome[2] != 0
     if module is cartpole:  # rewards and alive steps: whole numbers, summed exactly
-        returns, alive_steps = _over_time(records[k + 1:], axis=1)
-        returns = returns.astype(records.dtype)
+        returns, alive_steps = _over_time(outcome, slice(1, 3))
+        returns = returns.astype(outcome.dtype)
     else:  # any rewards, summed in a fixed order, a run alike alone and beside others
-        returns, alive_steps = sums.invariant_sum(records[k + 1], 0), _over_time(alive)
+        returns, alive_steps = sums.invariant_sum(outcome[1], 0), _over_time(outcome, 2)
     invalid = jnp.any(alive & outside_actions(action, module), axis=(0, 1))
     return Episodes(_transitions(records, discrete), returns, alive_steps, invalid)
 
 
-def _over_time(values: jax.Array, axis: int = 0) -> jax.Array:
-    """`values` summed over their time `axis`, one step after another, as int32 (for whole
-    numbers).
+def _over_time(records: jax.Array, rows: int | slice) -> jax.Array:
+    """The `rows` of records `[F, T, ...]` summed over time, one step after another, as int32 (for
+    whole numbers).
 
-    A loop, which XLA compiles whole, rather than its reduction over that axis: as a float sum
-    XLA hands that to a library call, which splits the training program's loop, and as an integer
-    sum it runs slower than the loop (docs/performance.md).
+    A loop, which XLA compiles whole, rather than its reduction over the time axis: as a float
+    sum XLA hands that to a library call, which splits the training program's loop, and as an
+    integer sum it runs slower than the loop (docs/performance.md). Each step's rows are read out
+    of the records in the loop, never copied out of them first.
     """
     def add(t: jax.Array, total: jax.Array) -> jax.Array:
-        """`total` with step `t`'s values added."""
-        return total + jax.lax.dynamic_index_in_dim(values, t, axis, keepdims=False).astype(
-            total.dtype)
+        """`total` with step `t`'s rows added."""
+        step = jax.lax.dynamic_index_in_dim(records, t, 1, keepdims=False)
+        return total + step[rows].astype(total.dtype)
 
-    shape = values.shape[:axis] + values.shape[axis + 1:]
-    return jax.lax.fori_loop(0, values.shape[axis], add, jnp.zeros(shape, jnp.int32))
+    return jax.lax.fori_loop(0, records.shape[1], add,
+                             jnp.zeros(records[rows, 0].shape, jnp.int32))
 
 
 def check_actions(action: ArrayLike, obs: ArrayLike, discrete: bool = True) -> None:
