@@ -38,7 +38,32 @@ def _elu_jvp(primals: tuple[jax.Array], tangents: tuple[jax.Array]
     need not compute `x` again beside it."""
     (x,), (dx,) = primals, tangents
     y = elu(x)
-    return y, jnp.where(y > 0, 1, y + 1) * dx
+    return y, _elu_derivative(y) * dx
+
+
+def _elu_derivative(y: jax.Array) -> jax.Array:
+    """`elu`'s derivative at the point where its value is `y`: 1 where `y` is positive, else
+    `y + 1`."""
+    return jnp.where(y > 0, 1, y + 1)
+
+
+@jax.custom_jvp
+def elu_of_value(x: jax.Array, y: jax.Array) -> jax.Array:
+    """`elu(x)`, given as its value `y`, computed before (a rollout's record).
+
+    Its derivative with respect to `x` is `elu`'s, from `y` alone, so that a gradient through it
+    computes no `elu`; `x` serves only as what the derivative is taken with respect to.
+    """
+    del x
+    return y
+
+
+@elu_of_value.defjvp
+def _elu_of_value_jvp(primals: tuple[jax.Array, jax.Array], tangents: tuple[jax.Array, jax.Array]
+                      ) -> tuple[jax.Array, jax.Array]:
+    """`y` and `elu`'s derivative at it times the tangent of `x` (`y` is taken as fixed)."""
+    (_, y), (dx, _) = primals, tangents
+    return y, _elu_derivative(y) * dx
 
 
 @jax.custom_jvp

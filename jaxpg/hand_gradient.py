@@ -40,7 +40,8 @@ def reinforce_loss(policy_params: Params, network: policies.PolicyNetwork,
 
 
 def loss_and_grad(policy_params: Params, network: policies.PolicyNetwork,
-                  transitions: rollout.Transition, advantages: Array) -> tuple[Array, Params]:
+                  transitions: rollout.Transition, advantages: Array,
+                  hidden: Array | None = None) -> tuple[Array, Params]:
     """`reinforce_loss` and its gradient: every step's share at once, added up over time in a loop.
 
     Each dense layer's input and output cotangent come for every step at once; a loop up to the
@@ -58,6 +59,9 @@ def loss_and_grad(policy_params: Params, network: policies.PolicyNetwork,
       network: the `PolicyNetwork`.
       transitions: as for `reinforce_loss`.
       advantages: as for `reinforce_loss`.
+      hidden: optional, for `"elu"` layers: the hidden layers' activations at each step as the
+        rollout recorded them, `[sum(hidden), T, E, *runs]` (`policies.HiddenRecordingPolicy`),
+        read rather than computed again.
 
     Returns:
       (loss `[*runs]`, gradient shaped as `policy_params`).
@@ -67,11 +71,13 @@ def loss_and_grad(policy_params: Params, network: policies.PolicyNetwork,
     count = jnp.maximum(sums.invariant_sum(transitions.alive.astype(advantages.dtype), (0, 1)), 1)
     alone = _alone(advantages.shape)
     if alone:
-        transitions, advantages = _padded_episodes(transitions, advantages, rollout.LANES)
+        transitions, advantages, hidden = _padded_episodes(transitions, advantages, hidden,
+                                                           rollout.LANES)
     weights = jnp.where(transitions.alive, advantages, 0.0)
     layers = policy_params["params"]
     names = [f"Dense_{i}" for i in range(len(layers))]
-    terms, inputs, cotangents = _step_signals(policy_params, network, transitions, weights)
+    terms, inputs, cotangents = _step_signals(policy_params, network, transitions, weights,
+                                              hidden)
     # A run alone's signals come without its run axes, which its totals get back at the end.
     runs = 0 if alone else len(run_shape)
 
@@ -114,27 +120,30 @@ def _alone(shape: tuple[int, ...]) -> bool:
     return math.prod(shape[2:]) == 1
 
 
-def _padded_episodes(transitions: rollout.Transition, advantages: Array,
-                     multiple: int) -> tuple[rollout.Transition, Array]:
-    """Episodes `[T, E, ...]` and their advantages, padded to a multiple of `multiple` episodes.
+def _padded_episodes(transitions: rollout.Transition, advantages: Array, hidden: Array | None,
+                     multiple: int) -> tuple[rollout.Transition, Array, Array | None]:
+    """Episodes `[T, E, ...]`, their advantages and any recorded hidden activations
+    `[N, T, E, ...]`, padded to a multiple of `multiple` episodes.
 
     The padding is episodes of no alive step, all zeros.
     """
     extra = -advantages.shape[1] % multiple
 
-    def pad(leaf: Array) -> Array:
-        """`leaf` with `extra` episodes of zeros appended."""
-        return jnp.pad(leaf, [(0, 0), (0, extra)] + [(0, 0)] * (leaf.ndim - 2))
+    def pad(leaf: Array, axis: int = 1) -> Array:
+        """`leaf` with `extra` episodes of zeros appended on its episode `axis`."""
+        return jnp.pad(leaf, [(0, 0)] * axis + [(0, extra)] + [(0, 0)] * (leaf.ndim - axis - 1))
 
-    return jax.tree.map(pad, transitions), pad(advantages)
+    return (jax.tree.map(pad, transitions), pad(advantages),
+            None if hidden is None else pad(hidden, 2))
 
 
 def _step_signals(policy_params: Params, network: policies.PolicyNetwork,
-                  transitions: rollout.Transition,
-                  weights: Array) -> tuple[Array, list[Array], list[Array]]:
+                  transitions: rollout.Transition, weights: Array, hidden: Array | None
+                  ) -> tuple[Array, list[Array], list[Array]]:
     """Every step's weighted log-probability and each dense layer's input and output cotangent.
 
-    They are `[T, E, *runs]`, `[K, T, E, *runs]` and `[N, T, E, *runs]`, computed at once. The
+    They are `[T, E, *runs]`, `[K, T, E, *runs]` and `[N, T, E, *runs]`, computed at once, from
+    the recorded `hidden` activations where given. The
     cotangents are the gradient with respect to zero offsets on each layer's output. A run
     alone computes them over its steps and episodes as one axis, and returns them without run
     axes (`[T, E]`, `[K, T, E]`, `[N, T, E]`): XLA vectorises over the last axis, which a run axis
@@ -147,10 +156,13 @@ def _step_signals(policy_params: Params, network: policies.PolicyNetwork,
         policy_params = _without_runs(policy_params, len(shape) - 2)
         obs, action, weights = (obs.reshape(-1, obs.shape[-1]), action.reshape(-1),
                                 weights.reshape(-1))
+        hidden = None if hidden is None else hidden.reshape(hidden.shape[0], -1)
+    layers_hidden = None if hidden is None else policies.hidden_layers(hidden, network)
 
     def forward(offsets: list[Array]) -> tuple[Array, list[Array]]:
         """The log-probability of each action taken, and each layer's inputs."""
-        logits, inputs = policies.forward_layers(policy_params, obs, network.activation, offsets)
+        logits, inputs = policies.forward_layers(policy_params, obs, network.activation, offsets,
+                                                 layers_hidden)
         return losses.log_prob(logits, action, fastmath.log_sigmoid), inputs
 
     layers = policy_params["params"]

@@ -222,20 +222,25 @@ def iterate(config: TrainConfig, train_state: TrainState,
 
     # Play the episodes of every run with its current policy: [T, E, R] transitions. A run alone
     # plays without its run axis, XLA vectorising over its episodes instead, in whole vectors.
+    # Runs side by side record the fast path's hidden activations for its gradient; a run alone
+    # computes them again there: under XLA's own setting (not the command's), its rollout rounds
+    # them otherwise than the gradient, and than the same run beside others (docs/performance.md).
     episodes = rollout.rollout(
-        key_rollout[0] if alone else key_rollout, _policy(config, params, alone),
+        key_rollout[0] if alone else key_rollout, _policy(config, params, alone, record=not alone),
         env_params, config.episodes, config.max_steps,
         lanes=rollout.LANES if alone else 1,
     )
     if alone:
         episodes = rollout.Episodes(
             jax.tree.map(lambda leaf: jnp.expand_dims(leaf, 2), episodes.transitions),
-            episodes.returns[:, None], episodes.lengths[:, None])
+            episodes.returns[:, None], episodes.lengths[:, None],
+            policy_features=None if episodes.policy_features is None
+            else episodes.policy_features[..., None])
 
     learn: Callable[..., tuple[Params, optax.OptState, Array, Array, dict[str, Any]]] = (
         _learn_by_hand if config.hand_gradient else _learn)
     new_params, opt_state, loss, grad_norm, extra = learn(
-        config, train_state, episodes.transitions, hyperparams, key_minibatches)
+        config, train_state, episodes, hyperparams, key_minibatches)
     metrics = Metrics(
         mean_return=episodes.returns.mean(axis=0),
         min_return=episodes.returns.min(axis=0),
@@ -325,32 +330,39 @@ def _without_run_axis(tree: Any) -> Any:
     return jax.tree.map(lambda leaf: leaf[..., 0], tree)
 
 
-def _policy(config: TrainConfig, params: Params, alone: bool) -> Policy:
+def _policy(config: TrainConfig, params: Params, alone: bool, record: bool = False) -> Policy:
     """The rollout's policy of the runs' parameters.
 
     It maps `(obs [E, R, K], u [E, R])` to actions `[E, R]`, without the run axes for a run alone.
+    With `record`, the fast path's policy records its hidden activations, which its gradient
+    reads back (`policies.HiddenRecordingPolicy`).
     """
     network = config.network
     if config.hand_gradient:  # parameters taken apart where the rollout's kernels use them
-        return policies.network_policy(
-            network, policies.unflatten(params, cast(policies.PolicyNetwork, network)))
+        network_params = policies.unflatten(params, cast(policies.PolicyNetwork, network))
+        if record and policies.records_hidden(network):
+            return policies.HiddenRecordingPolicy(cast(policies.PolicyNetwork, network),
+                                                  network_params)
+        return policies.network_policy(network, network_params)
     return policies.network_policy(network, params["policy"], runs=not alone,
                                    num_actions=config.num_actions)
 
 
 def _learn_by_hand(
-    config: TrainConfig, train_state: TrainState, transitions: rollout.Transition,
+    config: TrainConfig, train_state: TrainState, episodes: rollout.Episodes,
     hyperparams: Hyperparams, keys: PRNGKey,
 ) -> tuple[Array, optax.OptState, Array, Array, dict[str, Values]]:
     """The fast path's step: the book's loss and its gradient by `hand_gradient.loss_and_grad`."""
     del keys  # one step on all the episodes
     network = cast(policies.PolicyNetwork, config.network)
+    transitions = episodes.transitions
     # Discounted returns, normalised over every step of every episode of a run.
     advantages = returns.discount_and_normalize_masked(
         transitions.reward, transitions.alive, cast(Array, hyperparams.discount)  # traced
     )
     loss, grad_arrays = hand_gradient.loss_and_grad(
-        policies.unflatten(train_state.params, network), network, transitions, advantages)
+        policies.unflatten(train_state.params, network), network, transitions, advantages,
+        episodes.policy_features)
     grads = policies.flatten(grad_arrays, network)
     # The step runs with the runs first (`runwise.vmap_runs_first`).
     params, opt_state = runwise.vmap_runs_first(functools.partial(optimizer_step, config))(
@@ -362,7 +374,7 @@ def _learn_by_hand(
 
 
 def _learn(
-    config: TrainConfig, train_state: TrainState, transitions: rollout.Transition,
+    config: TrainConfig, train_state: TrainState, episodes: rollout.Episodes,
     hyperparams: Hyperparams, keys: PRNGKey,
 ) -> tuple[dict[str, Params], dict[str, optax.OptState], Array, Array, dict[str, Array]]:
     """Any other policy, loss or optimizer: `learn_run` of every run, by `runwise`.
@@ -371,6 +383,7 @@ def _learn(
     every sum in a fixed order, so a run rounds alike alone (no run axis) and beside others.
     """
     alone = is_run_alone(train_state)
+    transitions = episodes.transitions
     if alone:
         transitions = jax.tree.map(lambda leaf: leaf[:, :, 0], transitions)
         args = _without_run_axis((train_state.params, train_state.opt_state, hyperparams))

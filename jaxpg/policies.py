@@ -145,7 +145,8 @@ def forward(policy_params: Params, obs: Observation, activation: str) -> jax.Arr
 
 
 def forward_layers(policy_params: Params, obs: Observation, activation: str,
-                   offsets: Sequence[jax.Array] | None = None
+                   offsets: Sequence[jax.Array] | None = None,
+                   hidden: Sequence[jax.Array] | None = None
                    ) -> tuple[jax.Array, list[jax.Array]]:
     """`forward`'s logits and the input features `[K, ...]` of each dense layer.
 
@@ -155,6 +156,9 @@ def forward_layers(policy_params: Params, obs: Observation, activation: str,
       activation: as for `forward`.
       offsets: optional: one per layer, shaped like its output features `[N, ...]`, added to the
         layers' outputs: the gradient with respect to them is the cotangent of each layer's output.
+      hidden: optional, for `"elu"`: the hidden layers' activations `[N, ...]`, computed before
+        (`HiddenRecordingPolicy`): taken as they are, with `elu`'s derivative from them
+        (`fastmath.elu_of_value`), rather than computed again.
 
     Returns:
       (logits `[...]`, the input features of each layer, `[K, ...]` each, features first).
@@ -164,7 +168,8 @@ def forward_layers(policy_params: Params, obs: Observation, activation: str,
     inputs = []
     for i in range(len(layers)):
         if i:
-            features = _FORWARD_ACTIVATIONS[activation](features)
+            features = (_FORWARD_ACTIVATIONS[activation](features) if hidden is None
+                        else fastmath.elu_of_value(features, hidden[i - 1]))
         inputs.append(features)
         layer = layers[f"Dense_{i}"]
         features = dense(features, layer["kernel"], layer["bias"])
@@ -357,6 +362,51 @@ class NetworkPolicy:
             if self.runs:
                 dist = jax.tree.map(lambda leaf: jnp.moveaxis(leaf, -1, u.ndim - 1), dist)
         return distributions.mode(dist) if self.greedy else distributions.sample(dist, u)
+
+
+@struct.dataclass
+class HiddenRecordingPolicy:
+    """A `PolicyNetwork` of `"elu"` hidden layers as a policy in two stages, which a rollout
+    records between (`rollout.RecordingPolicy`): the hidden layers' activations, then the sampled
+    actions from the last of them. A gradient reads the recorded activations back
+    (`forward_layers`' `hidden`) rather than computing them again.
+
+    Attributes:
+      network: static: the `PolicyNetwork`, with at least one hidden layer.
+      policy_params: its parameters, with any run axes (as `forward` takes them).
+    """
+
+    network: PolicyNetwork = struct.field(pytree_node=False)
+    policy_params: dict
+
+    def features(self, obs: Observation) -> jax.Array:
+        """The hidden layers' activations, stacked `[sum(hidden), E]` (`[..., E, R]`), for
+        observations `[E, K]` (`[E, R, K]`)."""
+        return jnp.concatenate(
+            forward_layers(self.policy_params, obs, self.network.activation)[1][1:])
+
+    def act(self, features: jax.Array, u: jax.Array) -> Action:
+        """Actions `[E]` (`[E, R]`) sampled with uniforms `u` from `features`."""
+        layers = self.policy_params["params"]
+        out = layers[f"Dense_{len(layers) - 1}"]
+        last = features[features.shape[0] - self.network.hidden[-1]:]
+        return distributions.sample(dense(last, out["kernel"], out["bias"])[0], u)
+
+    def __call__(self, obs: Observation, u: jax.Array) -> Action:
+        """Actions `[E]` (`[E, R]`) for observations `[E, K]` (`[E, R, K]`) and uniforms `u`."""
+        return self.act(self.features(obs), u)
+
+
+def hidden_layers(features: jax.Array, network: PolicyNetwork) -> list[jax.Array]:
+    """`HiddenRecordingPolicy.features` `[sum(hidden), ...]` as each hidden layer's `[N, ...]`."""
+    return jnp.split(features, np.cumsum(network.hidden)[:-1])
+
+
+def records_hidden(network: nn.Module) -> bool:
+    """Whether the fast path's rollout records `network`'s hidden activations
+    (`HiddenRecordingPolicy`): a `PolicyNetwork` of one output and `"elu"` hidden layers."""
+    return (isinstance(network, PolicyNetwork) and network.outputs == 1
+            and network.activation == "elu" and len(network.hidden) > 0)
 
 
 def network_policy(network: nn.Module, policy_params: Params, runs: bool = False,

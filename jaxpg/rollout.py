@@ -16,7 +16,7 @@ episode it plays twice (`played_episodes`).
 import functools
 import math
 from collections.abc import Callable
-from typing import Any, NamedTuple, TypeVar
+from typing import Any, NamedTuple, Protocol, TypeVar, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +30,30 @@ from jaxpg.types import Action, ArrayLike, Observation, Policy, PRNGKey
 StreamPolicy = Callable[[Observation, PRNGKey], Action]
 
 _Tree = TypeVar("_Tree")
+
+
+@runtime_checkable
+class RecordingPolicy(Protocol):
+    """A policy in two stages, which `rollout` records between: features of each observation,
+    then actions from them (`policies.HiddenRecordingPolicy`: a network's hidden activations).
+
+    The rollout computes a step's features once, writes them into its record
+    (`Episodes.policy_features`) and acts on them as read back from it, so that a gradient reads
+    them rather than computing them again (compiled, XLA would compute them anew for each of
+    their two uses). Called as a policy, it is `act(features(obs), u)`.
+    """
+
+    def features(self, obs: Observation) -> jax.Array:
+        """Features `[F, E]` (`[F, E, R]`) of observations `[E, K]` (`[E, R, K]`)."""
+        ...
+
+    def act(self, features: jax.Array, u: jax.Array) -> Action:
+        """Actions `[E]` (`[E, R]`) from `features` and uniforms `u`."""
+        ...
+
+    def __call__(self, obs: Observation, u: jax.Array) -> Action:
+        """`act(features(obs), u)`."""
+        ...
 
 
 class Transition(NamedTuple):
@@ -54,6 +78,8 @@ class Episodes(NamedTuple):
     # alive step (CartPole played another than 0 or 1 as 0, push left; a continuous environment
     # one that is not finite); a caller of a user's policy raises it (`check_played_actions`).
     invalid_action: jax.Array | None = None
+    # [F, T, E, ...] the features a `RecordingPolicy` computed at each step; None for another.
+    policy_features: jax.Array | None = None
 
 
 CHUNK = 20  # steps simulated between checks whether every episode has ended
@@ -113,8 +139,9 @@ def _select(done: jax.Array, old: _Tree, new: _Tree) -> _Tree:
 
 
 # A step's record, or the records of every step `[..., T, E, ...]`: the observation's K features
-# `[K, ...]`, and its outcome `[3, ...]` (action, reward, alive, as floats).
-_Record = tuple[jax.Array, jax.Array]
+# `[K, ...]`, its outcome `[3, ...]` (action, reward, alive, as floats) and, for a
+# `RecordingPolicy`, the policy's features `[F, ...]`.
+_Record = tuple[jax.Array, ...]
 
 
 def _record(features: jax.Array, action: jax.Array, reward: jax.Array, alive: jax.Array
@@ -125,7 +152,17 @@ def _record(features: jax.Array, action: jax.Array, reward: jax.Array, alive: ja
     return features, jnp.stack([action.astype(dtype), reward.astype(dtype), alive.astype(dtype)])
 
 
-def _transitions(records: _Record, discrete: bool) -> Transition:
+def _read(records: jax.Array, t: jax.Array) -> jax.Array:
+    """Step `t` of `records` `[F, T, ...]`: `[F, ...]`."""
+    return jax.lax.dynamic_index_in_dim(records, t, 1, keepdims=False)
+
+
+def _write(records: jax.Array, values: jax.Array, t: jax.Array) -> jax.Array:
+    """`records` `[F, T, ...]` with step `t`'s `values` `[F, ...]` written in place."""
+    return jax.lax.dynamic_update_index_in_dim(records, values, t, 1)
+
+
+def _transitions(records: tuple[jax.Array, jax.Array], discrete: bool) -> Transition:
     """`Transition` from records `[K, T, E, ...]` and `[3, T, E, ...]`; int32 actions if
     `discrete`."""
     # Stored field first: the gradient reads the observations back features first, `[K, T, E]`,
@@ -139,8 +176,7 @@ def _transitions(records: _Record, discrete: bool) -> Transition:
 
 def _written(records: _Record, record: _Record, t: jax.Array) -> _Record:
     """`records` `[..., T, E, ...]` with step `t`'s `record` `[..., E, ...]` written in place."""
-    return jax.tree.map(lambda r, x: jax.lax.dynamic_update_index_in_dim(r, x, t, 1), records,
-                        record)
+    return tuple(_write(r, x, t) for r, x in zip(records, record, strict=True))
 
 
 def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
@@ -153,7 +189,8 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     Args:
       key: PRNG key for the initial states and the policy's uniforms; or R keys `[R, 2]` to play R
         runs at once, each as its key alone would.
-      policy: `(obs [E, K], u [E]) -> action [E]`; for R runs, `(obs [E, R, K], u [E, R])`.
+      policy: `(obs [E, K], u [E]) -> action [E]`; for R runs, `(obs [E, R, K], u [E, R])`. A
+        `RecordingPolicy`'s features are recorded (`Episodes.policy_features`).
       env_params: the environment's params (`CartPoleParams` or another of `jaxpg.envs`); an
         episode also ends when `env_params.max_steps` truncates it.
       num_episodes: E.
@@ -187,6 +224,7 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     # and so is a step's record: few kernels per step, which XLA runs in sequence
     # (docs/performance.md).
     size = init_state.to_array(axis=0).shape[0]
+    recorder = policy if isinstance(policy, RecordingPolicy) else None
 
     def state_of(features: jax.Array, t: jax.Array) -> Any:
         """The environment's state of values `[S, ...]` after `t` steps of the trajectory."""
@@ -200,7 +238,11 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         features, done = carry[:size], carry[size] != 0
         state = state_of(features, t)
         obs = module.observe(state)
-        action = policy(obs, u)
+        if recorder is not None:
+            records = (*records[:2], _write(records[2], recorder.features(obs), t))
+            action = recorder.act(_read(records[2], t), u)
+        else:
+            action = policy(obs, u)
         check_actions(action, obs, discrete)
         _, next_state, reward, terminated, truncated = module.step(state, action, env_params)
         alive = ~done
@@ -208,7 +250,7 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         next_features = jnp.where(done, features, next_state.to_array(axis=0))
         done = done | terminated | truncated
         return (jnp.concatenate([next_features, done[None].astype(features.dtype)]),
-                _written(records, record, t)), None
+                (*_written(records[:2], record, t), *records[2:])), None
 
     def playing(loop: tuple[jax.Array, jax.Array, _Record]) -> jax.Array:
         """Whether chunk `c` is to be played: some episode has not ended."""
@@ -226,11 +268,12 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     def write_ended(features: jax.Array, t: jax.Array, records: _Record) -> _Record:
         """`records` with step `t` masked, every episode having ended in the state of values
         `features`: its observation (at the chunk's first step), action 0."""
-        frozen = _record(jnp.moveaxis(module.observe(state_of(features, t - t % chunk)), -1, 0),
-                         jnp.zeros(features.shape[1:], jnp.int32),
+        obs = module.observe(state_of(features, t - t % chunk))
+        frozen = _record(jnp.moveaxis(obs, -1, 0), jnp.zeros(features.shape[1:], jnp.int32),
                          jnp.zeros(features.shape[1:], features.dtype),
                          jnp.zeros(features.shape[1:], bool))
-        return _written(records, frozen, t)
+        return _written(records, frozen if recorder is None
+                        else (*frozen, recorder.features(obs)), t)
 
     features = init_state.to_array(axis=0)
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
@@ -238,7 +281,11 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     # The chunks after every episode ended are not simulated: their steps are written masked.
     k = jax.eval_shape(module.observe, init_state).shape[-1]
     shape = (num_chunks * chunk, *features.shape[1:])
-    records = (jnp.zeros((k, *shape), features.dtype), jnp.zeros((3, *shape), features.dtype))
+    records: _Record = (jnp.zeros((k, *shape), features.dtype),
+                        jnp.zeros((3, *shape), features.dtype))
+    if recorder is not None:
+        f = jax.eval_shape(recorder.features, module.observe(init_state)).shape[0]
+        records = (*records, jnp.zeros((f, *shape), features.dtype))
     played_chunks, carry, records = jax.lax.while_loop(
         playing, play_chunk, (jnp.int32(0), carry, records))
     records = jax.lax.fori_loop(played_chunks * chunk, num_chunks * chunk,
@@ -252,7 +299,8 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     else:  # any rewards, summed in a fixed order, a run alike alone and beside others
         returns, alive_steps = sums.invariant_sum(outcome[1], 0), _over_time(outcome, 2)
     invalid = jnp.any(alive & outside_actions(action, module), axis=(0, 1))
-    return Episodes(_transitions(records, discrete), returns, alive_steps, invalid)
+    return Episodes(_transitions((records[0], records[1]), discrete), returns, alive_steps,
+                    invalid, records[2] if recorder is not None else None)
 
 
 def _over_time(records: jax.Array, rows: int | slice) -> jax.Array:
@@ -266,8 +314,7 @@ def _over_time(records: jax.Array, rows: int | slice) -> jax.Array:
     """
     def add(t: jax.Array, total: jax.Array) -> jax.Array:
         """`total` with step `t`'s rows added."""
-        step = jax.lax.dynamic_index_in_dim(records, t, 1, keepdims=False)
-        return total + step[rows].astype(total.dtype)
+        return total + _read(records, t)[rows].astype(total.dtype)
 
     return jax.lax.fori_loop(0, records.shape[1], add,
                              jnp.zeros(records[rows, 0].shape, jnp.int32))

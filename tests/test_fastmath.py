@@ -59,3 +59,13 @@ def test_derivatives_are_jax_nns(ours, theirs):
 def test_other_float_dtypes_take_jax_nns_own(ours, theirs):
     x = jnp.linspace(-5, 5, 101, dtype=jnp.float16)
     np.testing.assert_array_equal(ours(x), theirs(x))
+
+
+def test_elu_of_its_value_is_that_value_with_elus_derivative():
+    x = jnp.asarray(_grid(-30.0, 30.0)[::50])
+    y = fastmath.elu(x)
+    weights = jnp.linspace(-1.0, 1.0, x.size)
+    np.testing.assert_array_equal(fastmath.elu_of_value(x, y), y)
+    np.testing.assert_array_equal(
+        jax.grad(lambda x: (fastmath.elu_of_value(x, y) * weights).sum())(x),
+        jax.grad(lambda x: (fastmath.elu(x) * weights).sum())(x))

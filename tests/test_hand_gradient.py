@@ -158,3 +158,32 @@ def test_accumulated_gradient_of_steps_that_are_no_prefix():
     transitions = transitions._replace(alive=alive, reward=alive.astype(jnp.float32))
     advantages = returns.discount_and_normalize_masked(transitions.reward, alive, 0.95)
     _assert_accumulated_equals_autodiff(policy_params, network, transitions, advantages)
+
+
+@pytest.mark.parametrize("hidden", [(5,), (4, 4, 4)])
+def test_hidden_activations_a_rollout_records_give_the_gradient(hidden):
+    """`HiddenRecordingPolicy` plays the network's episodes, recording its hidden activations; the
+    loss and gradient from them are `reinforce_loss`'s, and for runs side by side bit for bit
+    those that compute the activations again. (A run alone records and reads its own: the
+    training tests compare it with the same run in a sweep.)"""
+    config = TrainConfig(episodes=10, max_steps=30, hidden=hidden)
+    network, policy_params, transitions, advantages = _runs_side_by_side(config, 4, 9)
+    keys = jax.random.split(jax.random.PRNGKey(9), 4)
+    recorded = rollout.rollout(keys, policies.HiddenRecordingPolicy(network, policy_params),
+                               config.env_params, config.episodes, config.max_steps)
+    chex.assert_trees_all_equal(recorded.transitions, transitions)
+    features = recorded.policy_features
+    assert features.shape == (sum(hidden), 30, 10, 4)
+    computed = policies.forward_layers(policy_params, transitions.obs, "elu")[1][1:]
+    chex.assert_trees_all_close(policies.hidden_layers(features, network), computed,
+                                rtol=1e-6, atol=1e-7)
+    compiled = jax.jit(lambda params, *rest: hand_gradient.loss_and_grad(params, network, *rest))
+    from_record = compiled(policy_params, transitions, advantages, features)
+    chex.assert_trees_all_equal(from_record,
+                                compiled(policy_params, transitions, advantages, None))
+    for r in range(4):
+        params, mine, weights = _one_run(r, False, policy_params, transitions, advantages)
+        expected = _compiled(jax.value_and_grad(hand_gradient.reinforce_loss), network)(
+            params, mine, weights)
+        chex.assert_trees_all_close(jax.tree.map(lambda leaf: leaf[..., r], from_record),
+                                    expected, rtol=1e-5, atol=1e-7)
