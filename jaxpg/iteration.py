@@ -21,6 +21,7 @@ from jaxpg.types import Array, ArrayLike, HostArray, Params, Policy, PRNGKey
 
 # An array inside the training program, or its value on the host (numpy) once fetched.
 Values = Array | HostArray
+Records = tuple[Array, ...]  # a rollout's records as written (`rollout.Episodes.records`)
 
 
 class TrainState(NamedTuple):
@@ -193,18 +194,48 @@ def optimizer_step(config: TrainConfig, grads: Params, opt_state: optax.OptState
     return optax.apply_updates(policy_params, updates), opt_state
 
 
-def iterate(config: TrainConfig, train_state: TrainState,
-            hyperparams: Hyperparams) -> tuple[TrainState, Metrics]:
+def iterate(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams,
+            records: Records) -> tuple[TrainState, Metrics, Records]:
     """One iteration of R runs at once: play, discount, take `config.updates` optimizer steps.
 
     Args:
       config: the `TrainConfig`.
       train_state: `TrainState` of the R runs.
       hyperparams: `Hyperparams` with `[R]` leaves.
+      records: the rollout's records, which it writes over (`initial_records`, then each
+        iteration's).
 
     Returns:
-      (`TrainState`, `Metrics` with `[R]` leaves)
+      (`TrainState`, `Metrics` with `[R]` leaves, the records)
     """
+    episodes, key, key_minibatches = _play(config, train_state, hyperparams, records)
+    learn: Callable[..., tuple[Params, optax.OptState, Array, Array, dict[str, Any]]] = (
+        _learn_by_hand if config.hand_gradient else _learn)
+    new_params, opt_state, loss, grad_norm, extra = learn(
+        config, train_state, episodes, hyperparams, key_minibatches)
+    metrics = Metrics(
+        mean_return=episodes.returns.mean(axis=0),
+        min_return=episodes.returns.min(axis=0),
+        max_return=episodes.returns.max(axis=0),
+        mean_length=episodes.lengths.mean(axis=0),
+        loss=loss,
+        grad_norm=grad_norm,
+        extra=extra,
+    )
+    return TrainState(new_params, opt_state, key), metrics, cast(Records, episodes.records)
+
+
+def initial_records(config: TrainConfig, train_state: TrainState,
+                    hyperparams: Hyperparams) -> Records:
+    """Zeros shaped as the records `iterate` writes for these runs: its first `records`."""
+    played = jax.eval_shape(functools.partial(_play, config), train_state, hyperparams, None)[0]
+    return tuple(jnp.zeros(leaf.shape, leaf.dtype) for leaf in played.records)
+
+
+def _play(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams,
+          records: Records | None) -> tuple[rollout.Episodes, PRNGKey, PRNGKey]:
+    """The runs' episodes of one iteration, written over `records` (if given), and the keys of
+    the next iteration and of this one's minibatches: (episodes `[T, E, R]`, key, key)."""
     key, key_rollout = rng.split(train_state.key)
     alone = is_run_alone(train_state)
     params = _without_run_axis(train_state.params) if alone else train_state.params
@@ -228,29 +259,13 @@ def iterate(config: TrainConfig, train_state: TrainState,
     episodes = rollout.rollout(
         key_rollout[0] if alone else key_rollout, _policy(config, params, alone, record=not alone),
         env_params, config.episodes, config.max_steps,
-        lanes=rollout.LANES if alone else 1,
+        lanes=rollout.LANES if alone else 1, records=records,
     )
     if alone:
-        episodes = rollout.Episodes(
-            jax.tree.map(lambda leaf: jnp.expand_dims(leaf, 2), episodes.transitions),
-            episodes.returns[:, None], episodes.lengths[:, None],
-            policy_features=None if episodes.policy_features is None
-            else episodes.policy_features[..., None])
-
-    learn: Callable[..., tuple[Params, optax.OptState, Array, Array, dict[str, Any]]] = (
-        _learn_by_hand if config.hand_gradient else _learn)
-    new_params, opt_state, loss, grad_norm, extra = learn(
-        config, train_state, episodes, hyperparams, key_minibatches)
-    metrics = Metrics(
-        mean_return=episodes.returns.mean(axis=0),
-        min_return=episodes.returns.min(axis=0),
-        max_return=episodes.returns.max(axis=0),
-        mean_length=episodes.lengths.mean(axis=0),
-        loss=loss,
-        grad_norm=grad_norm,
-        extra=extra,
-    )
-    return TrainState(new_params, opt_state, key), metrics
+        episodes = episodes._replace(
+            transitions=jax.tree.map(lambda leaf: jnp.expand_dims(leaf, 2), episodes.transitions),
+            returns=episodes.returns[:, None], lengths=episodes.lengths[:, None])
+    return episodes, key, key_minibatches
 
 
 def _physics(hyperparams: Hyperparams, alone: bool) -> Any:

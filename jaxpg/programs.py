@@ -14,10 +14,12 @@ from jaxpg import envs, executables, policies
 from jaxpg.iteration import (
     Evaluation,
     Metrics,
+    Records,
     TrainState,
     check_config,
     evaluate_runs,
     init_runs,
+    initial_records,
     is_run_alone,
     iterate,
 )
@@ -182,14 +184,18 @@ def _iterate_stacked(config: TrainConfig, extra: tuple[str, ...], train_state: T
       iteration's metrics' leaves, the rest zeros).
     """
 
-    def one(i: Array, carry: tuple[TrainState, Array]) -> tuple[TrainState, Array]:
-        """Iteration `i`, its metrics written into row `i` of the history."""
-        train_state, history = carry
-        train_state, metrics = iterate(config, train_state, hyperparams)
+    def one(i: Array, carry: tuple[TrainState, Array, Records]
+            ) -> tuple[TrainState, Array, Records]:
+        """Iteration `i`, its metrics written into row `i` of the history, its records over the
+        last iteration's (memory cleared once a call, not once an iteration)."""
+        train_state, history, records = carry
+        train_state, metrics, records = iterate(config, train_state, hyperparams, records)
         return train_state, jax.lax.dynamic_update_index_in_dim(
-            history, jnp.stack(jax.tree.leaves(metrics)), i, 0)
+            history, jnp.stack(jax.tree.leaves(metrics)), i, 0), records
 
     history = jnp.zeros((ITERATIONS_PER_CALL, len(Metrics._fields) - 1 + len(extra),
                          *jnp.shape(hyperparams.learning_rate)), jnp.result_type(float))
-    return jax.lax.fori_loop(0, jnp.minimum(count, ITERATIONS_PER_CALL), one,
-                             (train_state, history))
+    records = initial_records(config, train_state, hyperparams)
+    train_state, history, _ = jax.lax.fori_loop(0, jnp.minimum(count, ITERATIONS_PER_CALL), one,
+                                                (train_state, history, records))
+    return train_state, history

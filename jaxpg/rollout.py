@@ -80,6 +80,10 @@ class Episodes(NamedTuple):
     invalid_action: jax.Array | None = None
     # [F, T, E, ...] the features a `RecordingPolicy` computed at each step; None for another.
     policy_features: jax.Array | None = None
+    # The records as the rollout wrote them, of every step of whole chunks and every played
+    # episode: observations [K, T', E', ...], action, reward and alive [3, T', E', ...], and any
+    # policy features; a later `rollout(..., records=...)` of the same shapes writes over them.
+    records: tuple[jax.Array, ...] | None = None
 
 
 CHUNK = 20  # steps simulated between checks whether every episode has ended
@@ -180,7 +184,8 @@ def _written(records: _Record, record: _Record, t: jax.Array) -> _Record:
 
 
 def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
-            max_steps: int, init_state: Any = None, lanes: int = 1) -> Episodes:
+            max_steps: int, init_state: Any = None, lanes: int = 1,
+            records: tuple[jax.Array, ...] | None = None) -> Episodes:
     """Plays `num_episodes` episodes of at most `max_steps` steps with `policy`.
 
     Time runs in chunks of `CHUNK` steps; once every episode has ended, the remaining chunks are
@@ -200,6 +205,8 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
       lanes: the episodes are played in a multiple of this many lanes, the first ones again in the
         lanes left over (one episode in two: `played_episodes`); the policy sees every lane, the
         result only the E episodes.
+      records: optional, `Episodes.records` of an earlier rollout of the same shapes, written over
+        (every entry is) rather than new memory cleared for them.
 
     Returns:
       `Episodes` with transitions of shape `[T, E, ...]` (`[T, E, R, ...]` for R runs).
@@ -281,15 +288,16 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     # The chunks after every episode ended are not simulated: their steps are written masked.
     k = jax.eval_shape(module.observe, init_state).shape[-1]
     shape = (num_chunks * chunk, *features.shape[1:])
-    records: _Record = (jnp.zeros((k, *shape), features.dtype),
-                        jnp.zeros((3, *shape), features.dtype))
-    if recorder is not None:
-        f = jax.eval_shape(recorder.features, module.observe(init_state)).shape[0]
-        records = (*records, jnp.zeros((f, *shape), features.dtype))
+    if records is None:
+        records = (jnp.zeros((k, *shape), features.dtype), jnp.zeros((3, *shape), features.dtype))
+        if recorder is not None:
+            f = jax.eval_shape(recorder.features, module.observe(init_state)).shape[0]
+            records = (*records, jnp.zeros((f, *shape), features.dtype))
     played_chunks, carry, records = jax.lax.while_loop(
         playing, play_chunk, (jnp.int32(0), carry, records))
     records = jax.lax.fori_loop(played_chunks * chunk, num_chunks * chunk,
                                 functools.partial(write_ended, carry[:size]), records)
+    written = records
     records = jax.tree.map(lambda r: r[:, :max_steps, :num_episodes], records)
     outcome = records[1]
     action, alive = outcome[0], outcome[2] != 0
@@ -300,7 +308,7 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         returns, alive_steps = sums.invariant_sum(outcome[1], 0), _over_time(outcome, 2)
     invalid = jnp.any(alive & outside_actions(action, module), axis=(0, 1))
     return Episodes(_transitions((records[0], records[1]), discrete), returns, alive_steps,
-                    invalid, records[2] if recorder is not None else None)
+                    invalid, records[2] if recorder is not None else None, written)
 
 
 def _over_time(records: jax.Array, rows: int | slice) -> jax.Array:

@@ -181,14 +181,17 @@ def test_episodes_played_in_whole_vectors_are_the_episodes(init_state, num_episo
 
     key = jax.random.PRNGKey(3)
     plain = rollout.rollout(key, policy, LIMITED, num_episodes, 30)
-    chex.assert_trees_all_equal(rollout.rollout(key, watched, LIMITED, num_episodes, 30,
-                                                lanes=rollout.LANES), plain)
+    padded = rollout.rollout(key, watched, LIMITED, num_episodes, 30, lanes=rollout.LANES)
+    # Everything but the records as written, which hold every lane played.
+    chex.assert_trees_all_equal(padded._replace(records=None), plain._replace(records=None))
     assert seen and all(lanes % rollout.LANES == 0 and lanes - num_episodes < rollout.LANES
                         for lanes in seen)
+    assert {r.shape[2] for r in padded.records} == set(seen)
     given = jax.tree.map(lambda leaf: leaf[:num_episodes], init_state)
     chex.assert_trees_all_equal(
-        rollout.rollout(key, basic_policy, LIMITED, num_episodes, 30, given, lanes=rollout.LANES),
-        rollout.rollout(key, basic_policy, LIMITED, num_episodes, 30, given))
+        rollout.rollout(key, basic_policy, LIMITED, num_episodes, 30, given,
+                        lanes=rollout.LANES)._replace(records=None),
+        rollout.rollout(key, basic_policy, LIMITED, num_episodes, 30, given)._replace(records=None))
 
 
 def test_many_runs_at_once_play_as_each_run_alone():
@@ -221,3 +224,16 @@ def test_an_action_other_than_0_or_1_is_flagged_per_run():
     episodes = jax.jit(lambda keys: rollout.rollout(keys, policy, cartpole.V1, 4, 10))(keys)
     np.testing.assert_array_equal(episodes.invalid_action, [False, True, False])
     assert not rollout.rollout(keys[0], basic_policy, cartpole.V1, 4, 10).invalid_action
+
+
+def test_a_rollout_written_over_an_earlier_ones_records_is_the_rollout():
+    """Every entry of the records is written: over the records of a rollout whose episodes
+    lasted longer, one whose episodes all end early (its last chunks never played) is the same."""
+    random_actions = lambda obs, u: (u > 0.5).astype(jnp.int32)  # noqa: E731
+    always_left = lambda obs, u: jnp.zeros(u.shape, jnp.int32)  # noqa: E731
+    earlier = rollout.rollout(jax.random.PRNGKey(1), random_actions, cartpole.V1, 6, 120)
+    fresh = rollout.rollout(jax.random.PRNGKey(2), always_left, cartpole.V1, 6, 120)
+    assert int(fresh.lengths.max()) < rollout.CHUNK < int(earlier.lengths.max())
+    chex.assert_trees_all_equal(
+        rollout.rollout(jax.random.PRNGKey(2), always_left, cartpole.V1, 6, 120,
+                        records=earlier.records), fresh)
