@@ -195,18 +195,19 @@ def optimizer_step(config: TrainConfig, grads: Params, opt_state: optax.OptState
 
 
 def iterate(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams,
-            records: Records) -> tuple[TrainState, Metrics, Records]:
+            records: Records | None = None) -> tuple[TrainState, Metrics, Records | None]:
     """One iteration of R runs at once: play, discount, take `config.updates` optimizer steps.
 
     Args:
       config: the `TrainConfig`.
       train_state: `TrainState` of the R runs.
       hyperparams: `Hyperparams` with `[R]` leaves.
-      records: the rollout's records, which it writes over (`initial_records`, then each
-        iteration's).
+      records: optional, the rollout's records, which it writes over (`initial_records`, then
+        each iteration's) rather than clearing new ones.
 
     Returns:
-      (`TrainState`, `Metrics` with `[R]` leaves, the records)
+      (`TrainState`, `Metrics` with `[R]` leaves, the records written over `records`, None
+      without them)
     """
     episodes, key, key_minibatches = _play(config, train_state, hyperparams, records)
     learn: Callable[..., tuple[Params, optax.OptState, Array, Array, dict[str, Any]]] = (
@@ -222,7 +223,8 @@ def iterate(config: TrainConfig, train_state: TrainState, hyperparams: Hyperpara
         grad_norm=grad_norm,
         extra=extra,
     )
-    return TrainState(new_params, opt_state, key), metrics, cast(Records, episodes.records)
+    return (TrainState(new_params, opt_state, key), metrics,
+            None if records is None else episodes.records)
 
 
 def initial_records(config: TrainConfig, train_state: TrainState,

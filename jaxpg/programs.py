@@ -184,10 +184,10 @@ def _iterate_stacked(config: TrainConfig, extra: tuple[str, ...], train_state: T
       iteration's metrics' leaves, the rest zeros).
     """
 
-    def one(i: Array, carry: tuple[TrainState, Array, Records]
-            ) -> tuple[TrainState, Array, Records]:
+    def one(i: Array, carry: tuple[TrainState, Array, Records | None]
+            ) -> tuple[TrainState, Array, Records | None]:
         """Iteration `i`, its metrics written into row `i` of the history, its records over the
-        last iteration's (memory cleared once a call, not once an iteration)."""
+        last iteration's, if any."""
         train_state, history, records = carry
         train_state, metrics, records = iterate(config, train_state, hyperparams, records)
         return train_state, jax.lax.dynamic_update_index_in_dim(
@@ -195,7 +195,10 @@ def _iterate_stacked(config: TrainConfig, extra: tuple[str, ...], train_state: T
 
     history = jnp.zeros((ITERATIONS_PER_CALL, len(Metrics._fields) - 1 + len(extra),
                          *jnp.shape(hyperparams.learning_rate)), jnp.result_type(float))
-    records = initial_records(config, train_state, hyperparams)
+    # A block's records are cleared once a call, each iteration writing over the last one's; a
+    # run alone's, small, each iteration, which compiles sooner (docs/performance.md).
+    records = None if is_run_alone(train_state) else initial_records(config, train_state,
+                                                                     hyperparams)
     train_state, history, _ = jax.lax.fori_loop(0, jnp.minimum(count, ITERATIONS_PER_CALL), one,
                                                 (train_state, history, records))
     return train_state, history
