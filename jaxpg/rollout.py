@@ -227,9 +227,8 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     num_chunks = -(-max_steps // chunk)
     noise = rng.uniform(key_policy, (num_chunks, chunk, num_episodes), repeat=(2, played))
 
-    # The carry is one array, the state's S values and whether the episode ended `[S + 1, E, R]`,
-    # and so is a step's record: few kernels per step, which XLA runs in sequence
-    # (docs/performance.md).
+    # The carry is one array, the state's S values and whether the episode ended `[S + 1, E, R]`:
+    # few kernels per step, which XLA runs in sequence (docs/performance.md).
     size = init_state.to_array(axis=0).shape[0]
     recorder = policy if isinstance(policy, RecordingPolicy) else None
 
@@ -286,9 +285,9 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
     # Every step writes its record in place, field first: `[K, T, E, ...]` and `[3, T, E, ...]`.
     # The chunks after every episode ended are not simulated: their steps are written masked.
-    k = jax.eval_shape(module.observe, init_state).shape[-1]
-    shape = (num_chunks * chunk, *features.shape[1:])
     if records is None:
+        k = jax.eval_shape(module.observe, init_state).shape[-1]
+        shape = (num_chunks * chunk, *features.shape[1:])
         records = (jnp.zeros((k, *shape), features.dtype), jnp.zeros((3, *shape), features.dtype))
         if recorder is not None:
             f = jax.eval_shape(recorder.features, module.observe(init_state)).shape[0]

@@ -163,9 +163,10 @@ def test_accumulated_gradient_of_steps_that_are_no_prefix():
 @pytest.mark.parametrize("hidden", [(5,), (4, 4, 4)])
 def test_hidden_activations_a_rollout_records_give_the_gradient(hidden):
     """`HiddenRecordingPolicy` plays the network's episodes, recording its hidden activations; the
-    loss and gradient from them are `reinforce_loss`'s, and for runs side by side bit for bit
-    those that compute the activations again. (A run alone records and reads its own: the
-    training tests compare it with the same run in a sweep.)"""
+    loss and gradient from them are `reinforce_loss`'s, for runs side by side (bit for bit those
+    that compute the activations again) and for a run alone, whose recorded activations are
+    padded as its episodes are. (Training records them for runs side by side only: the training
+    tests compare a run alone with the same run in a sweep.)"""
     config = TrainConfig(episodes=10, max_steps=30, hidden=hidden)
     network, policy_params, transitions, advantages = _runs_side_by_side(config, 4, 9)
     keys = jax.random.split(jax.random.PRNGKey(9), 4)
@@ -187,3 +188,18 @@ def test_hidden_activations_a_rollout_records_give_the_gradient(hidden):
             params, mine, weights)
         chex.assert_trees_all_close(jax.tree.map(lambda leaf: leaf[..., r], from_record),
                                     expected, rtol=1e-5, atol=1e-7)
+    # A run alone on a run axis of one, its episodes played in whole vectors and the recorded
+    # activations padded with theirs.
+    params = jax.tree.map(lambda leaf: leaf[..., 1], policy_params)
+    alone = rollout.rollout(keys[1], policies.HiddenRecordingPolicy(network, params),
+                            config.env_params, config.episodes, config.max_steps,
+                            lanes=rollout.LANES)
+    mine = jax.tree.map(lambda leaf: jnp.expand_dims(leaf, 2), alone.transitions)
+    weights = returns.discount_and_normalize_masked(mine.reward, mine.alive, 0.95)
+    expected = _compiled(jax.value_and_grad(hand_gradient.reinforce_loss), network)(
+        params, alone.transitions, weights[:, :, 0])
+    chex.assert_trees_all_close(
+        jax.tree.map(lambda leaf: leaf[..., 0], compiled(
+            jax.tree.map(lambda leaf: leaf[..., None], params), mine, weights,
+            alone.policy_features[..., None])),
+        expected, rtol=1e-5, atol=1e-7)
