@@ -285,13 +285,17 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
     # Every step writes its record in place, field first: `[K, T, E, ...]` and `[3, T, E, ...]`.
     # The chunks after every episode ended are not simulated: their steps are written masked.
+    rows = [jax.eval_shape(module.observe, init_state).shape[-1], 3]
+    if recorder is not None:
+        rows.append(jax.eval_shape(recorder.features, module.observe(init_state)).shape[0])
+    shapes = [(n, num_chunks * chunk, *features.shape[1:]) for n in rows]
     if records is None:
-        k = jax.eval_shape(module.observe, init_state).shape[-1]
-        shape = (num_chunks * chunk, *features.shape[1:])
-        records = (jnp.zeros((k, *shape), features.dtype), jnp.zeros((3, *shape), features.dtype))
-        if recorder is not None:
-            f = jax.eval_shape(recorder.features, module.observe(init_state)).shape[0]
-            records = (*records, jnp.zeros((f, *shape), features.dtype))
+        records = tuple(jnp.zeros(shape, features.dtype) for shape in shapes)
+    elif ([np.shape(r) for r in records] != shapes
+          or any(jnp.result_type(r) != features.dtype for r in records)):
+        raise ValueError(f"records: expected the Episodes.records of a rollout of the same shapes, "
+                         f"{features.dtype} {shapes}, got "
+                         f"{[f'{jnp.result_type(r)} {np.shape(r)}' for r in records]}")
     played_chunks, carry, records = jax.lax.while_loop(
         playing, play_chunk, (jnp.int32(0), carry, records))
     records = jax.lax.fori_loop(played_chunks * chunk, num_chunks * chunk,

@@ -237,3 +237,11 @@ def test_a_rollout_written_over_an_earlier_ones_records_is_the_rollout():
     chex.assert_trees_all_equal(
         rollout.rollout(jax.random.PRNGKey(2), always_left, cartpole.V1, 6, 120,
                         records=earlier.records), fresh)
+
+
+def test_records_of_other_shapes_are_refused_in_one_line():
+    policy = lambda obs, u: (u > 0.5).astype(jnp.int32)  # noqa: E731
+    earlier = rollout.rollout(jax.random.PRNGKey(1), policy, cartpole.V1, 6, 40)
+    with pytest.raises(ValueError, match=r"^records: expected the Episodes.records of a rollout "
+                                         r"of the same shapes, float32 \[\(4, 40, 5\)[^\n]*$"):
+        rollout.rollout(jax.random.PRNGKey(1), policy, cartpole.V1, 5, 40, records=earlier.records)
