@@ -21,7 +21,6 @@ from jaxpg.types import Array, ArrayLike, HostArray, Params, Policy, PRNGKey
 
 # An array inside the training program, or its value on the host (numpy) once fetched.
 Values = Array | HostArray
-Records = tuple[Array, ...]  # a rollout's records as written (`rollout.Episodes.records`)
 
 
 class TrainState(NamedTuple):
@@ -195,7 +194,8 @@ def optimizer_step(config: TrainConfig, grads: Params, opt_state: optax.OptState
 
 
 def iterate(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams,
-            records: Records | None = None) -> tuple[TrainState, Metrics, Records | None]:
+            records: rollout.Records | None = None
+            ) -> tuple[TrainState, Metrics, rollout.Records | None]:
     """One iteration of R runs at once: play, discount, take `config.updates` optimizer steps.
 
     Args:
@@ -228,14 +228,14 @@ def iterate(config: TrainConfig, train_state: TrainState, hyperparams: Hyperpara
 
 
 def initial_records(config: TrainConfig, train_state: TrainState,
-                    hyperparams: Hyperparams) -> Records:
+                    hyperparams: Hyperparams) -> rollout.Records:
     """Zeros shaped as the records `iterate` writes for these runs: its first `records`."""
     played = jax.eval_shape(functools.partial(_play, config), train_state, hyperparams, None)[0]
     return tuple(jnp.zeros(leaf.shape, leaf.dtype) for leaf in played.records)
 
 
 def _play(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams,
-          records: Records | None) -> tuple[rollout.Episodes, PRNGKey, PRNGKey]:
+          records: rollout.Records | None) -> tuple[rollout.Episodes, PRNGKey, PRNGKey]:
     """The runs' episodes of one iteration, written over `records` (if given), and the keys of
     the next iteration and of this one's minibatches: (episodes `[T, E, R]`, key, key)."""
     key, key_rollout = rng.split(train_state.key)

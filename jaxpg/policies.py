@@ -389,7 +389,7 @@ class HiddenRecordingPolicy:
         """Actions `[E]` (`[E, R]`) sampled with uniforms `u` from `features`."""
         layers = self.policy_params["params"]
         out = layers[f"Dense_{len(layers) - 1}"]
-        last = features[features.shape[0] - self.network.hidden[-1]:]
+        last = hidden_layers(features, self.network)[-1]
         return distributions.sample(dense(last, out["kernel"], out["bias"])[0], u)
 
     def __call__(self, obs: Observation, u: jax.Array) -> Action:

@@ -10,11 +10,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import envs, executables, policies
+from jaxpg import envs, executables, policies, rollout
 from jaxpg.iteration import (
     Evaluation,
     Metrics,
-    Records,
     TrainState,
     check_config,
     evaluate_runs,
@@ -184,8 +183,8 @@ def _iterate_stacked(config: TrainConfig, extra: tuple[str, ...], train_state: T
       iteration's metrics' leaves, the rest zeros).
     """
 
-    def one(i: Array, carry: tuple[TrainState, Array, Records | None]
-            ) -> tuple[TrainState, Array, Records | None]:
+    def one(i: Array, carry: tuple[TrainState, Array, rollout.Records | None]
+            ) -> tuple[TrainState, Array, rollout.Records | None]:
         """Iteration `i`, its metrics written into row `i` of the history, its records over the
         last iteration's, if any."""
         train_state, history, records = carry

@@ -30,6 +30,10 @@ from jaxpg.types import Action, ArrayLike, Observation, Policy, PRNGKey
 StreamPolicy = Callable[[Observation, PRNGKey], Action]
 
 _Tree = TypeVar("_Tree")
+# A step's record, or the records of every step `[..., T, E, ...]`: the observation's K features
+# `[K, ...]`, its outcome `[3, ...]` (action, reward, alive, as floats) and, for a
+# `RecordingPolicy`, the policy's features `[F, ...]`.
+Records = tuple[jax.Array, ...]
 
 
 @runtime_checkable
@@ -83,7 +87,7 @@ class Episodes(NamedTuple):
     # The records as the rollout wrote them, of every step of whole chunks and every played
     # episode: observations [K, T', E', ...], action, reward and alive [3, T', E', ...], and any
     # policy features; a later `rollout(..., records=...)` of the same shapes writes over them.
-    records: tuple[jax.Array, ...] | None = None
+    records: Records | None = None
 
 
 CHUNK = 20  # steps simulated between checks whether every episode has ended
@@ -142,14 +146,8 @@ def _select(done: jax.Array, old: _Tree, new: _Tree) -> _Tree:
         old, new)
 
 
-# A step's record, or the records of every step `[..., T, E, ...]`: the observation's K features
-# `[K, ...]`, its outcome `[3, ...]` (action, reward, alive, as floats) and, for a
-# `RecordingPolicy`, the policy's features `[F, ...]`.
-_Record = tuple[jax.Array, ...]
-
-
 def _record(features: jax.Array, action: jax.Array, reward: jax.Array, alive: jax.Array
-            ) -> _Record:
+            ) -> Records:
     """One step's transition: (the observation's K features `[K, E, ...]`, action, reward and
     alive `[3, E, ...]`)."""
     dtype = features.dtype
@@ -178,14 +176,14 @@ def _transitions(records: tuple[jax.Array, jax.Array], discrete: bool) -> Transi
                       alive=outcome[2] != 0)
 
 
-def _written(records: _Record, record: _Record, t: jax.Array) -> _Record:
+def _written(records: Records, record: Records, t: jax.Array) -> Records:
     """`records` `[..., T, E, ...]` with step `t`'s `record` `[..., E, ...]` written in place."""
     return tuple(_write(r, x, t) for r, x in zip(records, record, strict=True))
 
 
 def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
             max_steps: int, init_state: Any = None, lanes: int = 1,
-            records: tuple[jax.Array, ...] | None = None) -> Episodes:
+            records: Records | None = None) -> Episodes:
     """Plays `num_episodes` episodes of at most `max_steps` steps with `policy`.
 
     Time runs in chunks of `CHUNK` steps; once every episode has ended, the remaining chunks are
@@ -236,8 +234,8 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         """The environment's state of values `[S, ...]` after `t` steps of the trajectory."""
         return type(init_state).from_array(jnp.moveaxis(features, 0, -1), init_state.time + t)
 
-    def one_step(loop: tuple[jax.Array, _Record], step: tuple[jax.Array, jax.Array]
-                 ) -> tuple[tuple[jax.Array, _Record], None]:
+    def one_step(loop: tuple[jax.Array, Records], step: tuple[jax.Array, jax.Array]
+                 ) -> tuple[tuple[jax.Array, Records], None]:
         """One step of every episode: the carry `[S + 1, E, ...]`, and its record written into
         the records at step `t`."""
         (carry, records), (u, t) = loop, step
@@ -258,20 +256,20 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         return (jnp.concatenate([next_features, done[None].astype(features.dtype)]),
                 (*_written(records[:2], record, t), *records[2:])), None
 
-    def playing(loop: tuple[jax.Array, jax.Array, _Record]) -> jax.Array:
+    def playing(loop: tuple[jax.Array, jax.Array, Records]) -> jax.Array:
         """Whether chunk `c` is to be played: some episode has not ended."""
         c, carry, _ = loop
         return (c < num_chunks) & ~jnp.all(carry[size] != 0)
 
-    def play_chunk(loop: tuple[jax.Array, jax.Array, _Record]
-                   ) -> tuple[jax.Array, jax.Array, _Record]:
+    def play_chunk(loop: tuple[jax.Array, jax.Array, Records]
+                   ) -> tuple[jax.Array, jax.Array, Records]:
         """Chunk `c`'s `CHUNK` steps simulated, their records written."""
         c, carry, records = loop
         chunk_steps = (jax.lax.dynamic_index_in_dim(noise, c, keepdims=False),
                        c * chunk + jnp.arange(chunk, dtype=jnp.int32))
         return c + 1, *jax.lax.scan(one_step, (carry, records), chunk_steps)[0]
 
-    def write_ended(features: jax.Array, t: jax.Array, records: _Record) -> _Record:
+    def write_ended(features: jax.Array, t: jax.Array, records: Records) -> Records:
         """`records` with step `t` masked, every episode having ended in the state of values
         `features`: its observation (at the chunk's first step), action 0."""
         obs = module.observe(state_of(features, t - t % chunk))
@@ -287,15 +285,17 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
     # The chunks after every episode ended are not simulated: their steps are written masked.
     rows = [jax.eval_shape(module.observe, init_state).shape[-1], 3]
     if recorder is not None:
-        rows.append(jax.eval_shape(recorder.features, module.observe(init_state)).shape[0])
+        rows.append(jax.eval_shape(lambda s: recorder.features(module.observe(s)),
+                                   init_state).shape[0])
     shapes = [(n, num_chunks * chunk, *features.shape[1:]) for n in rows]
     if records is None:
         records = tuple(jnp.zeros(shape, features.dtype) for shape in shapes)
-    elif ([np.shape(r) for r in records] != shapes
+    elif (not isinstance(records, tuple) or [np.shape(r) for r in records] != shapes
           or any(jnp.result_type(r) != features.dtype for r in records)):
+        got = ([f"{jnp.result_type(r)} {np.shape(r)}" for r in records]
+               if isinstance(records, tuple) else type(records).__name__)
         raise ValueError(f"records: expected the Episodes.records of a rollout of the same shapes, "
-                         f"{features.dtype} {shapes}, got "
-                         f"{[f'{jnp.result_type(r)} {np.shape(r)}' for r in records]}")
+                         f"{features.dtype} {shapes}, got {got}")
     played_chunks, carry, records = jax.lax.while_loop(
         playing, play_chunk, (jnp.int32(0), carry, records))
     records = jax.lax.fori_loop(played_chunks * chunk, num_chunks * chunk,

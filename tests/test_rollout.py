@@ -245,3 +245,6 @@ def test_records_of_other_shapes_are_refused_in_one_line():
     with pytest.raises(ValueError, match=r"^records: expected the Episodes.records of a rollout "
                                          r"of the same shapes, float32 \[\(4, 40, 5\)[^\n]*$"):
         rollout.rollout(jax.random.PRNGKey(1), policy, cartpole.V1, 5, 40, records=earlier.records)
+    with pytest.raises(ValueError, match=r"^records: expected [^\n]*, got list$"):
+        rollout.rollout(jax.random.PRNGKey(1), policy, cartpole.V1, 6, 40,
+                        records=list(earlier.records))
