@@ -7,10 +7,12 @@ auto-reset's select, `jax.random`'s draws a user makes at every step (`randint`,
 `split(key, N)`, `split` and `vmap(cartpole.reset)`), `rollout.random_policy`, a user's whole loop
 (as `env_throughput.py`'s jaxpg-user), the same loop drawing `jaxpg.rng`'s equal numbers, and
 `rollout.stream` itself. The programs run in turn, `--repeats` rounds; the fastest and the median
-time per environment step of each.
+time per environment step of each. `--wide-vectors` compiles every program with 512-bit vectors
+(`jaxpg.xla_options.WIDE_VECTORS`).
 
     python benchmarks/env_pieces.py                          # N = 4096 and 65536
     python benchmarks/env_pieces.py --sizes 4096 --repeats 3  # a quick check
+    python benchmarks/env_pieces.py --wide-vectors
 """
 
 import argparse
@@ -21,7 +23,7 @@ import common
 import jax
 import jax.numpy as jnp
 
-from jaxpg import cartpole, rng, rollout
+from jaxpg import cartpole, rng, rollout, xla_options
 
 ENV_PARAMS = cartpole.V1
 STEPS_PER_RUN = 2**23  # N x T of each program
@@ -93,8 +95,9 @@ def pieces(num_envs):
     }
 
 
-def piece_program(body, num_envs, num_steps):
-    """`key -> (state, count)`: `body` scanned over `num_steps` steps of `num_envs` envs."""
+def piece_program(body, num_envs, num_steps, options=None):
+    """`key -> (state, count)`: `body` scanned over `num_steps` steps of `num_envs` envs, jitted
+    with XLA's compiler `options`."""
 
     def program(key):
         _, state = rollout.reset_batch(key, num_envs, ENV_PARAMS)
@@ -105,22 +108,23 @@ def piece_program(body, num_envs, num_steps):
         carry = (state, jnp.zeros(num_envs, jnp.int32))
         return jax.lax.scan(one_step, carry, jax.random.split(key, num_steps))[0]
 
-    return jax.jit(program)
+    return jax.jit(program, compiler_options=options)
 
 
-def stream_program(num_envs, num_steps):
+def stream_program(num_envs, num_steps, options=None):
     """`key -> (StreamState, StreamStats)`: `rollout.stream` with random actions."""
     return jax.jit(lambda key: rollout.stream(key, rollout.random_policy, ENV_PARAMS, num_envs,
-                                              num_steps))
+                                              num_steps), compiler_options=options)
 
 
-def measure(num_envs, repeats):
-    """Rows of ns per environment step of every piece at N = `num_envs`, timed in turn."""
+def measure(num_envs, repeats, options=None):
+    """Rows of ns per environment step of every piece at N = `num_envs`, timed in turn, each
+    compiled with XLA's compiler `options`."""
     num_steps = max(8, STEPS_PER_RUN // num_envs // 8 * 8)
     key = jax.random.PRNGKey(0)
-    programs = {name: piece_program(body, num_envs, num_steps)
+    programs = {name: piece_program(body, num_envs, num_steps, options)
                 for name, body in pieces(num_envs).items()}
-    programs["rollout.stream"] = stream_program(num_envs, num_steps)
+    programs["rollout.stream"] = stream_program(num_envs, num_steps, options)
     compiled, compile_s = {}, {}
     for name, program in programs.items():
         compiled[name], times = common.compile_jitted(program, key)
@@ -142,12 +146,15 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="4096,65536", help="comma-separated numbers of envs N")
     parser.add_argument("--repeats", type=int, default=7, help="rounds of runs (min and median)")
+    parser.add_argument("--wide-vectors", action="store_true",
+                        help="compile every program with 512-bit vectors (WIDE_VECTORS)")
     args = parser.parse_args()
     args.sizes = [int(n) for n in args.sizes.split(",")]
     if any(n < 1 for n in args.sizes) or args.repeats < 1:
         parser.error("--sizes and --repeats: positive integers")
     common.print_header("Where a CartPole step's time goes, ns per environment step")
-    rows = [row for num_envs in args.sizes for row in measure(num_envs, args.repeats)]
+    options = xla_options.WIDE_VECTORS if args.wide_vectors else None
+    rows = [row for num_envs in args.sizes for row in measure(num_envs, args.repeats, options)]
     common.print_table(rows, ["piece", "n", "steps_per_env", "min_ns", "median_ns", "compile_s"],
                        title="ns per environment step (each piece its own program)")
     common.write_results("env_pieces", args, rows)

@@ -2,7 +2,8 @@
 
 For N environments stepped together, with auto-reset:
 
-- jaxpg: `rollout.stream` with `rollout.random_policy`, jitted; one program per (N, T) whose scan
+- jaxpg: `rollout.stream` with `rollout.random_policy`, jitted with 512-bit vectors
+  (`xla_options.WIDE_VECTORS`, as its docstring advises); one program per (N, T) whose scan
   length T is chosen so that a run takes about `--seconds`; compile time is reported apart. The
   random actions are drawn inside the program and so are counted.
 - jaxpg-user: `cartpole.step` as a researcher steps it in a program of their own: a `jit` of
@@ -49,7 +50,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv  # noqa: E402
 
-from jaxpg import cartpole, rollout  # noqa: E402
+from jaxpg import cartpole, rollout, xla_options  # noqa: E402
 
 IMPLS = ("jaxpg", "jaxpg-user", "jaxpg-sharded", "gymnax", "gymnasium-vector", "gymnasium",
          "jaxpg-gym-vector", "jaxpg-gym")
@@ -77,13 +78,14 @@ def jaxpg_program(num_envs, num_steps, sharded=False):
         return rollout.stream(key, rollout.random_policy, env_params, num_envs, num_steps)
 
     if not sharded:
-        return jax.jit(program)
+        return jax.jit(program, compiler_options=xla_options.WIDE_VECTORS)
     mesh = jax.sharding.Mesh(np.array(jax.devices()), ("env",))
     split, whole = (jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(*axes))
                     for axes in (("env",), ()))
     state, stats = jax.eval_shape(program, jax.random.PRNGKey(0))
     return jax.jit(program, out_shardings=(jax.tree.map(lambda _: split, state),
-                                           jax.tree.map(lambda _: whole, stats)))
+                                           jax.tree.map(lambda _: whole, stats)),
+                   compiler_options=xla_options.WIDE_VECTORS)
 
 
 def user_program(num_envs, num_steps):

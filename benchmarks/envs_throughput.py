@@ -4,12 +4,12 @@ For each of Acrobot-v1, MountainCar-v0, Pendulum-v1 and MountainCarContinuous-v0
 and N environments stepped together with auto-reset:
 
 - jaxpg: `rollout.stream` with `rollout.random_policy` (uniform over the actions, or over
-  [ACTION_LOW, ACTION_HIGH]), jitted, as `env_throughput.py` measures CartPole; one program per
-  (env, N, T) whose scan length T is chosen so that a run takes about `--seconds` (or fixed with
-  `--steps`); compile time is reported apart. The random actions and the reset states are drawn
-  inside the program and so are counted; the stream draws reset states for every environment once
-  every `rollout.STREAM_CHUNK` steps (and again for one that resets twice in them), not at every
-  step.
+  [ACTION_LOW, ACTION_HIGH]), jitted with 512-bit vectors (`xla_options.WIDE_VECTORS`), as
+  `env_throughput.py` measures CartPole; one program per (env, N, T) whose scan length T is chosen
+  so that a run takes about `--seconds` (or fixed with `--steps`); compile time is reported apart.
+  The random actions and the reset states are drawn inside the program and so are counted; the
+  stream draws reset states for every environment once every `rollout.STREAM_CHUNK` steps (and
+  again for one that resets twice in them), not at every step.
 - gymnax (when importable): the same id with `vmap` over environments and `lax.scan` over time;
   the auto-reset is gymnax's own `step`, which draws a reset state for every environment at every
   step, the actions its action space's `sample`, inside the program as for jaxpg.
@@ -83,10 +83,12 @@ def scan_program(reset_all, step_all, num_steps):
 
 
 def jaxpg_program(module, num_envs, num_steps):
-    """N auto-resetting envs of `module`, T random steps: `rollout.stream`, jitted."""
+    """N auto-resetting envs of `module`, T random steps: `rollout.stream`, jitted with 512-bit
+    vectors."""
     env_params = module.PRESETS[module.NAME]
     policy = functools.partial(rollout.random_policy, env_params=env_params)
-    return jax.jit(lambda key: rollout.stream(key, policy, env_params, num_envs, num_steps))
+    return jax.jit(lambda key: rollout.stream(key, policy, env_params, num_envs, num_steps),
+                   compiler_options=xla_options.WIDE_VECTORS)
 
 
 def gymnax_program(gymnax, env_id, num_envs, num_steps):

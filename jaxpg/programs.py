@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpg import envs, executables, policies, rollout
+from jaxpg import envs, executables, policies, rollout, xla_options
 from jaxpg.iteration import (
     Evaluation,
     Metrics,
@@ -110,11 +110,9 @@ def compiled_program(config: TrainConfig) -> Program:
 # Runs are initialised once: compiled for speed of compiling, not of running (docs/performance.md).
 INIT_OPTIONS: dict[str, Any] = {
     "xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
-# A block of several runs iterates with 512-bit vectors (XLA's default is 256): faster, the same
-# bits (docs/performance.md). A block of one run must not: with its loop compiled whole
-# (`jaxpg.xla_options`), 512-bit vectors round some of its episodes otherwise than the same run's
-# beside others.
-TOGETHER_OPTIONS: dict[str, Any] = {"xla_cpu_prefer_vector_width": 512}
+# A block of several runs iterates with 512-bit vectors (`xla_options.WIDE_VECTORS`): faster, the
+# same bits (docs/performance.md). A block of one run must not: with its loop compiled whole,
+# 512-bit vectors round some of its episodes otherwise than the same run's beside others.
 
 
 class AloneOrTogether(NamedTuple):
@@ -124,7 +122,7 @@ class AloneOrTogether(NamedTuple):
 
     Attributes:
       alone: the function for a run alone (a block of one run).
-      together: the function for several runs (`TOGETHER_OPTIONS`).
+      together: the function for several runs (`xla_options.WIDE_VECTORS`).
     """
 
     alone: executables.Stored
@@ -168,7 +166,7 @@ def _program(config: TrainConfig) -> Program:
         stored(jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
                "init"),
         AloneOrTogether(stored(jit_iterate(None), "iterate_alone"),
-                        stored(jit_iterate(TOGETHER_OPTIONS), "iterate")),
+                        stored(jit_iterate(xla_options.WIDE_VECTORS), "iterate")),
         jax.jit(functools.partial(evaluate_runs, config),
                 static_argnames=("episodes", "randomized")),
     )

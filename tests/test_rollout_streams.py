@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from jaxpg import cartpole, envs, rollout
+from jaxpg import cartpole, envs, rollout, xla_options
 
 TASKS = [name for name, module in envs.MODULES.items() if module is not cartpole]
 
@@ -66,6 +66,23 @@ def test_stream_of_short_episodes_counts_every_episode(name):
     np.testing.assert_array_equal(state.env_state.time, num_steps % (limit + 1))
     assert np.asarray(state.prev_done).all()
     assert np.isfinite(float(stats.total_return))
+
+
+@pytest.mark.parametrize("name", envs.MODULES)
+def test_stream_compiled_with_wide_vectors_steps_the_same(name):
+    """`xla_options.WIDE_VECTORS` (512-bit vectors where the CPU has them): the same bits, also for
+    the environments of a vector's remainder (37 = 2 x 16 + 5)."""
+    env_params = task_params(name)
+    policy = functools.partial(rollout.random_policy, env_params=env_params)
+
+    def program(key):
+        return rollout.stream(key, policy, env_params, 37, 4 * rollout.STREAM_CHUNK + 3)
+
+    key = jax.random.PRNGKey(9)
+    plain = jax.jit(program)(key)
+    wide = jax.jit(program, compiler_options=xla_options.WIDE_VECTORS)(key)
+    for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(wide), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_an_environment_resetting_every_other_step_draws_a_new_state_each_time():
