@@ -331,6 +331,7 @@ def main():
         "env_throughput", args, rows, ratios=summaries,
         notes={
             "jax_impls": "random actions drawn inside the compiled program (counted)",
+            "jaxpg, jaxpg-sharded": "compiled with xla_options.WIDE_VECTORS (512-bit vectors)",
             "gymnasium-vector": "actions drawn per step with numpy outside the timed region",
             "gymnasium": "actions drawn in blocks beforehand; resets are timed",
             "jaxpg-gym-vector, jaxpg-gym": "timed as gymnasium-vector and gymnasium",

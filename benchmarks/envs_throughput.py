@@ -220,6 +220,7 @@ def main():
             "jaxpg, gymnax": "random actions and reset states drawn inside the compiled program "
                              "(counted)",
             "gymnasium-vector": "actions drawn per step outside the timed region",
+            "jaxpg": "compiled with xla_options.WIDE_VECTORS (512-bit vectors)",
         },
     )
     common.write_chart([{**row, "impl": f"{row['impl']} {row['env']}"} for row in rows], path,

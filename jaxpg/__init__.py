@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 # name: module; `conformance` too, as before it moved into `jaxpg.envs`; `render` is the
 # animations' module, which holds `jaxpg.envs.render.render_frame` too
 _MODULES = {"cartpole": "envs.cartpole", "conformance": "envs.conformance", "gym": "envs.gym",
-            "losses": "losses", "render": "animation"}
+            "losses": "losses", "render": "animation", "xla_options": "xla_options"}
 _DEFINED_IN = {  # public name: the module of jaxpg's that defines it
     "EvalResult": "evaluation",
     "evaluate": "evaluation",

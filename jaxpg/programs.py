@@ -110,9 +110,6 @@ def compiled_program(config: TrainConfig) -> Program:
 # Runs are initialised once: compiled for speed of compiling, not of running (docs/performance.md).
 INIT_OPTIONS: dict[str, Any] = {
     "xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
-# A block of several runs iterates with 512-bit vectors (`xla_options.WIDE_VECTORS`): faster, the
-# same bits (docs/performance.md). A block of one run must not: with its loop compiled whole,
-# 512-bit vectors round some of its episodes otherwise than the same run's beside others.
 
 
 class AloneOrTogether(NamedTuple):
@@ -165,6 +162,9 @@ def _program(config: TrainConfig) -> Program:
         config, extra,
         stored(jax.jit(functools.partial(init_runs, config), compiler_options=INIT_OPTIONS),
                "init"),
+        # A block of several runs iterates with 512-bit vectors: faster, the same bits
+        # (docs/performance.md). A block of one run must not: with its loop compiled whole,
+        # 512-bit vectors round some of its episodes otherwise than the same run's beside others.
         AloneOrTogether(stored(jit_iterate(None), "iterate_alone"),
                         stored(jit_iterate(xla_options.WIDE_VECTORS), "iterate")),
         jax.jit(functools.partial(evaluate_runs, config),

@@ -522,8 +522,9 @@ def stream(key: PRNGKey, policy: StreamPolicy, env_params: Any, num_envs: int,
     `env_params`) draws again for that step: such a chunk is played again, checking every step
     (under `jax.vmap` the choice is a select, so both plays always run).
 
-    Compiled on its own, `jax.jit(..., compiler_options=xla_options.WIDE_VECTORS)` steps it about
-    1.5x as fast on a CPU with 512-bit vectors, with the same results (docs/performance.md).
+    `jax.jit(..., compiler_options=xla_options.WIDE_VECTORS)` steps it about 1.5x as fast on a CPU
+    with 512-bit vectors, with the same results (docs/performance.md). The options count only on
+    the outermost `jax.jit`: where the stream is part of a program of yours, pass them to its.
 
     Args:
       key: PRNG key.

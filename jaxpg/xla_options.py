@@ -45,7 +45,8 @@ XLA_DEFAULTS = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_thresh
 
 
 # Options of one program rather than the process: `jax.jit(f, compiler_options=WIDE_VECTORS)`
-# compiles `f` with 512-bit vectors where the CPU has them (XLA's default is 256). A block of
+# compiles `f` with 512-bit vectors where the CPU has them (XLA's default is 256), if that `jit`
+# is not inside another (JAX refuses options there: pass them to the outer one). A block of
 # several runs trains with them, and a stream of environments steps 1.5x as fast, the same bits.
 # Not the process's: a rollout of a few episodes padded to a vector of 16 lanes would round some of
 # them otherwise than unpadded (docs/performance.md, "The XLA setting").

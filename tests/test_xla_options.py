@@ -208,3 +208,11 @@ def test_the_setting_is_added_to_xla_flags_unless_backend_options_are_given(monk
     monkeypatch.setenv("XLA_FLAGS", xla_options.XLA_DEFAULTS)
     xla_options.configure_xla()
     assert os.environ["XLA_FLAGS"] == xla_options.XLA_DEFAULTS
+
+
+def test_the_package_names_its_xla_options_module():
+    """As the README writes it: `jaxpg.xla_options.WIDE_VECTORS`, after `import jaxpg`."""
+    import jaxpg
+
+    assert jaxpg.xla_options is xla_options
+    assert "xla_options" in dir(jaxpg)
