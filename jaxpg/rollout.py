@@ -523,8 +523,9 @@ def stream(key: PRNGKey, policy: StreamPolicy, env_params: Any, num_envs: int,
     (under `jax.vmap` the choice is a select, so both plays always run).
 
     `jax.jit(..., compiler_options=xla_options.WIDE_VECTORS)` steps it about 1.5x as fast on a CPU
-    with 512-bit vectors, with the same results (docs/performance.md). The options count only on
-    the outermost `jax.jit`: where the stream is part of a program of yours, pass them to its.
+    with 512-bit vectors (docs/performance.md), with the same results for `random_policy` on
+    every task (a policy's own arithmetic may round otherwise). The options count only on the
+    outermost `jax.jit`: where the stream is part of a program of yours, pass them to its.
 
     Args:
       key: PRNG key.
