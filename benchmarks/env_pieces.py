@@ -16,6 +16,7 @@ time per environment step of each. `--wide-vectors` compiles every program with 
 """
 
 import argparse
+import functools
 import statistics
 import time
 
@@ -111,10 +112,16 @@ def piece_program(body, num_envs, num_steps, options=None):
     return jax.jit(program, compiler_options=options)
 
 
-def stream_program(num_envs, num_steps, options=None):
-    """`key -> (StreamState, StreamStats)`: `rollout.stream` with random actions."""
-    return jax.jit(lambda key: rollout.stream(key, rollout.random_policy, ENV_PARAMS, num_envs,
-                                              num_steps), compiler_options=options)
+def random_stream(num_envs, num_steps, env_params=ENV_PARAMS):
+    """`key -> (StreamState, StreamStats)`: `rollout.stream` of `env_params`' environment with
+    random actions (`rollout.random_policy`)."""
+    policy = functools.partial(rollout.random_policy, env_params=env_params)
+    return lambda key: rollout.stream(key, policy, env_params, num_envs, num_steps)
+
+
+def stream_program(num_envs, num_steps, options=None, env_params=ENV_PARAMS):
+    """`random_stream` jitted with XLA's compiler `options`."""
+    return jax.jit(random_stream(num_envs, num_steps, env_params), compiler_options=options)
 
 
 def measure(num_envs, repeats, options=None):

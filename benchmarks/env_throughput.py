@@ -50,7 +50,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv  # noqa: E402
 
-from jaxpg import cartpole, rollout, xla_options  # noqa: E402
+from jaxpg import xla_options  # noqa: E402
 
 IMPLS = ("jaxpg", "jaxpg-user", "jaxpg-sharded", "gymnax", "gymnasium-vector", "gymnasium",
          "jaxpg-gym-vector", "jaxpg-gym")
@@ -72,13 +72,9 @@ def jaxpg_program(num_envs, num_steps, sharded=False):
     `sharded` splits the environments over every device: XLA partitions the program, and each
     device steps its share (the statistics are summed over devices).
     """
-    env_params = cartpole.V1
-
-    def program(key):
-        return rollout.stream(key, rollout.random_policy, env_params, num_envs, num_steps)
-
     if not sharded:
-        return jax.jit(program, compiler_options=xla_options.WIDE_VECTORS)
+        return env_pieces.stream_program(num_envs, num_steps, xla_options.WIDE_VECTORS)
+    program = env_pieces.random_stream(num_envs, num_steps)
     mesh = jax.sharding.Mesh(np.array(jax.devices()), ("env",))
     split, whole = (jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec(*axes))
                     for axes in (("env",), ()))

@@ -27,10 +27,10 @@ and N environments stepped together with auto-reset:
 """
 
 import argparse
-import functools
 import time
 
 import common
+import env_pieces
 import env_throughput  # its timing and ratios; it also gives JAX one CPU device per core
 
 from jaxpg import xla_options
@@ -44,7 +44,7 @@ import gymnasium as gym  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from jaxpg import cartpole, rollout  # noqa: E402
+from jaxpg import cartpole  # noqa: E402
 from jaxpg.envs import MODULES  # noqa: E402
 
 # CartPole's two presets are measured by env_throughput.py.
@@ -85,10 +85,8 @@ def scan_program(reset_all, step_all, num_steps):
 def jaxpg_program(module, num_envs, num_steps):
     """N auto-resetting envs of `module`, T random steps: `rollout.stream`, jitted with 512-bit
     vectors."""
-    env_params = module.PRESETS[module.NAME]
-    policy = functools.partial(rollout.random_policy, env_params=env_params)
-    return jax.jit(lambda key: rollout.stream(key, policy, env_params, num_envs, num_steps),
-                   compiler_options=xla_options.WIDE_VECTORS)
+    return env_pieces.stream_program(num_envs, num_steps, xla_options.WIDE_VECTORS,
+                                     module.PRESETS[module.NAME])
 
 
 def gymnax_program(gymnax, env_id, num_envs, num_steps):
