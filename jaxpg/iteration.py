@@ -8,7 +8,18 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxpg import hand_gradient, losses, policies, returns, rng, rollout, runwise, sums
+from jaxpg import (
+    distributions,
+    hand_gradient,
+    losses,
+    policies,
+    replay,
+    returns,
+    rng,
+    rollout,
+    runwise,
+    sums,
+)
 from jaxpg.train_config import (
     ELEMENTWISE_OPTIMIZERS,
     Hyperparams,
@@ -259,7 +270,7 @@ def _play(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams
     # computes them again there: under XLA's own setting (not the command's), its rollout rounds
     # them otherwise than the gradient, and than the same run beside others (docs/performance.md).
     episodes = rollout.rollout(
-        key_rollout[0] if alone else key_rollout, _policy(config, params, alone, record=not alone),
+        key_rollout[0] if alone else key_rollout, _policy(config, params, alone, record=True),
         env_params, config.episodes, config.max_steps,
         lanes=rollout.LANES if alone else 1, records=records,
     )
@@ -351,18 +362,48 @@ def _policy(config: TrainConfig, params: Params, alone: bool, record: bool = Fal
     """The rollout's policy of the runs' parameters.
 
     It maps `(obs [E, R, K], u [E, R])` to actions `[E, R]`, without the run axes for a run alone.
-    With `record`, the fast path's policy records its hidden activations, which its gradient
-    reads back (`policies.HiddenRecordingPolicy`).
+    With `record`, the policy records what its gradient reads back: the fast path's hidden
+    activations for runs side by side (`policies.HiddenRecordingPolicy`), a module's pass where
+    the gradient replays it (`replay_plan`).
     """
     network = config.network
     if config.hand_gradient:  # parameters taken apart where the rollout's kernels use them
         network_params = policies.unflatten(params, cast(policies.PolicyNetwork, network))
-        if record and policies.records_hidden(network):
+        if record and not alone and policies.records_hidden(network):
             return policies.HiddenRecordingPolicy(cast(policies.PolicyNetwork, network),
                                                   network_params)
         return policies.network_policy(network, network_params)
+    plan = record and replay_plan(config, (rollout.played_episodes(
+        config.episodes, rollout.LANES if alone else 1),))
+    if plan:
+        return replay.ReplayPolicy(plan, network, params["policy"], runs=not alone,
+                                   num_actions=config.num_actions)
     return policies.network_policy(network, params["policy"], runs=not alone,
                                    num_actions=config.num_actions)
+
+
+@functools.lru_cache(maxsize=64)
+def replay_plan(config: TrainConfig, batch: tuple[int, ...]) -> replay.Plan | None:
+    """The `replay.Plan` of the policy module's pass over observations `[*batch, K]`, where the
+    gradient replays the rollout's: off the fast path, with one update on every episode, and a
+    module whose pass records the same values for one step `[E]` as for every step `[T, E]`;
+    else None."""
+    if config.hand_gradient or config.updates != 1:
+        return None
+    obs_size = config.env_module.OBS_SIZE
+    params = jax.eval_shape(lambda key: policies.init_network(key, config.network, obs_size),
+                            jax.ShapeDtypeStruct((2,), jnp.uint32))
+    floats = jnp.result_type(float)
+
+    def planned(batch: tuple[int, ...]) -> replay.Plan | None:
+        """The plan for observations `[*batch, K]`."""
+        return replay.plan(config.network.apply, params,
+                           jax.ShapeDtypeStruct((*batch, obs_size), floats))
+
+    step, every = planned(batch[-1:]), planned((config.max_steps, config.episodes))
+    if step is None or every is None or not replay.same_layout(step, every):
+        return None
+    return step if len(batch) == 1 else every
 
 
 def _learn_by_hand(
@@ -379,7 +420,7 @@ def _learn_by_hand(
     )
     loss, grad_arrays = hand_gradient.loss_and_grad(
         policies.unflatten(train_state.params, network), network, transitions, advantages,
-        episodes.policy_features)
+        None if episodes.policy_features is None else episodes.policy_features[0])
     grads = policies.flatten(grad_arrays, network)
     # The step runs with the runs first (`runwise.vmap_runs_first`).
     params, opt_state = runwise.vmap_runs_first(functools.partial(optimizer_step, config))(
@@ -412,13 +453,16 @@ def _learn(
         returns.discount_masked(transitions.reward, transitions.alive,
                                 cast(Array, args[2].discount)))  # traced
     outs = runwise.runwise(functools.partial(learn_run, config), batched=not alone)(
-        *args[:2], batch, args[2], keys[0] if alone else keys.T)
+        *args[:2], batch, args[2], keys[0] if alone else keys.T,
+        None if episodes.policy_features is None else tuple(
+            leaf[0] for leaf in episodes.policy_features))
     return jax.tree.map(lambda leaf: leaf[..., None], outs) if alone else outs
 
 
 def learn_run(
     config: TrainConfig, params: dict[str, Params], opt_state: dict[str, optax.OptState],
     batch: losses.Batch, hyper: Hyperparams, key: PRNGKey,
+    played: tuple[Array, ...] | None = None,
 ) -> tuple[dict[str, Params], dict[str, optax.OptState], Array, Array, dict[str, Array]]:
     """One run's optimizer steps on its loss plus the entropy bonus: `TrainConfig.updates` of them.
 
@@ -433,6 +477,9 @@ def learn_run(
       batch: the run's episodes, `[T, E]`, without `log_prob` and `values`.
       hyper: the run's `Hyperparams`, scalars.
       key: the run's key `[2]` for its minibatches, used with several.
+      played: optional, where `replay_plan` serves: the policy's pass as the rollout recorded it,
+        each value `[T, E, n]` (`replay.ReplayPolicy`), which the loss's `apply_fn` of the policy's
+        parameters on `batch.obs` replays rather than computing again.
 
     Returns:
       (params, opt_state, loss, grad_norm of the policy's gradient, the loss's metrics, with
@@ -440,16 +487,24 @@ def learn_run(
       last three averaged over the updates.
     """
     loss_fn = losses.resolve(config.loss)
-    apply_fn = _once_per_input(functools.partial(
-        policies.distribution, config.network, num_actions=config.num_actions))
+    distribution = functools.partial(policies.distribution, config.network,
+                                     num_actions=config.num_actions)
     critic = losses.critic(config.loss)
+    if played is None:
+        played_dist = distribution(params["policy"], batch.obs)
+    else:
+        plan = cast(replay.Plan, replay_plan(config, batch.obs.shape[:-1]))
+        played_dist = distributions.from_output(replay.output(plan, played), batch.obs.shape,
+                                                config.num_actions)
     batch = jax.lax.stop_gradient(batch._replace(
-        log_prob=losses.log_prob(apply_fn(params["policy"], batch.obs), batch.action),
+        log_prob=losses.log_prob(played_dist, batch.action),
         values=jnp.zeros_like(batch.reward) if critic is None
         else cast(Array, critic.apply(params["critic"], batch.obs))))
 
     def total(params: dict[str, Params], batch: losses.Batch) -> tuple[Array, dict[str, Array]]:
         """The loss plus the entropy bonus, and the metrics."""
+        apply_fn = _once_per_input(distribution if played is None else _replaying(
+            config, plan, params["policy"], batch.obs, played))
         loss, metrics = loss_fn(params if critic else params["policy"], apply_fn, batch, hyper)
         if not config.entropy_coef:  # no run has a bonus (`programs.compiled_program`)
             return loss, metrics
@@ -519,6 +574,22 @@ def minibatches(config: TrainConfig, batch: losses.Batch, key: PRNGKey) -> losse
         return jnp.moveaxis(grouped, 1, 0)
 
     return jax.tree.map(split, batch)
+
+
+def _replaying(config: TrainConfig, plan: replay.Plan, policy_params: Params, obs: Array,
+               played: tuple[Array, ...]) -> losses.ApplyFn:
+    """The loss's `apply_fn`: on `policy_params` and `obs`, the pass the rollout recorded in
+    `played` (`replay.replayed`); on any other arguments, the module's own."""
+    replayed = replay.replayed(plan, config.network.apply)
+
+    def apply(params: Params, observations: Array) -> Any:
+        """The action distribution of `params` on `observations`."""
+        if params is policy_params and observations is obs:
+            return distributions.from_output(replayed(params, obs, played), obs.shape,
+                                             config.num_actions)
+        return policies.distribution(config.network, params, observations, config.num_actions)
+
+    return apply
 
 
 def _once_per_input(apply_fn: losses.ApplyFn) -> losses.ApplyFn:

@@ -379,17 +379,17 @@ class HiddenRecordingPolicy:
     network: PolicyNetwork = struct.field(pytree_node=False)
     policy_params: dict
 
-    def features(self, obs: Observation) -> jax.Array:
+    def features(self, obs: Observation) -> tuple[jax.Array]:
         """The hidden layers' activations, stacked `[sum(hidden), E]` (`[..., E, R]`), for
         observations `[E, K]` (`[E, R, K]`)."""
-        return jnp.concatenate(
-            forward_layers(self.policy_params, obs, self.network.activation)[1][1:])
+        return (jnp.concatenate(
+            forward_layers(self.policy_params, obs, self.network.activation)[1][1:]),)
 
-    def act(self, features: jax.Array, u: jax.Array) -> Action:
+    def act(self, features: tuple[jax.Array, ...], u: jax.Array) -> Action:
         """Actions `[E]` (`[E, R]`) sampled with uniforms `u` from `features`."""
         layers = self.policy_params["params"]
         out = layers[f"Dense_{len(layers) - 1}"]
-        last = hidden_layers(features, self.network)[-1]
+        last = hidden_layers(features[0], self.network)[-1]
         return distributions.sample(dense(last, out["kernel"], out["bias"])[0], u)
 
     def __call__(self, obs: Observation, u: jax.Array) -> Action:

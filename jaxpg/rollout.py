@@ -39,19 +39,21 @@ Records = tuple[jax.Array, ...]
 @runtime_checkable
 class RecordingPolicy(Protocol):
     """A policy in two stages, which `rollout` records between: features of each observation,
-    then actions from them (`policies.HiddenRecordingPolicy`: a network's hidden activations).
+    then actions from them (`policies.HiddenRecordingPolicy`: a network's hidden activations;
+    `replay.ReplayPolicy`: the values of a module's pass that its gradient reads).
 
-    The rollout computes a step's features once, writes them into its record
-    (`Episodes.policy_features`) and acts on them as read back from it, so that a gradient reads
-    them rather than computing them again (compiled, XLA would compute them anew for each of
-    their two uses). Called as a policy, it is `act(features(obs), u)`.
+    The rollout computes a step's features once, writes them into its records
+    (`Episodes.policy_features`) and acts on them as read back from them, so that a gradient
+    reads them rather than computing them again (compiled, XLA would compute them anew for each
+    of their two uses). Called as a policy, it is `act(features(obs), u)`.
     """
 
-    def features(self, obs: Observation) -> jax.Array:
-        """Features `[F, E]` (`[F, E, R]`) of observations `[E, K]` (`[E, R, K]`)."""
+    def features(self, obs: Observation) -> tuple[jax.Array, ...]:
+        """Features, each `[F, E, ...]` (`[F, E, R, ...]`), of observations `[E, K]`
+        (`[E, R, K]`): each recorded `[F, T, E, ...]`."""
         ...
 
-    def act(self, features: jax.Array, u: jax.Array) -> Action:
+    def act(self, features: tuple[jax.Array, ...], u: jax.Array) -> Action:
         """Actions `[E]` (`[E, R]`) from `features` and uniforms `u`."""
         ...
 
@@ -82,8 +84,9 @@ class Episodes(NamedTuple):
     # alive step (CartPole played another than 0 or 1 as 0, push left; a continuous environment
     # one that is not finite); a caller of a user's policy raises it (`check_played_actions`).
     invalid_action: jax.Array | None = None
-    # [F, T, E, ...] the features a `RecordingPolicy` computed at each step; None for another.
-    policy_features: jax.Array | None = None
+    # Each [F, T, E, ...]: the features a `RecordingPolicy` computed at each step; None for
+    # another policy.
+    policy_features: tuple[jax.Array, ...] | None = None
     # The records as the rollout wrote them, of every step of whole chunks and every played
     # episode: observations [K, T', E', ...], action, reward and alive [3, T', E', ...], and any
     # policy features; a later `rollout(..., records=...)` of the same shapes writes over them.
@@ -243,8 +246,8 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         state = state_of(features, t)
         obs = module.observe(state)
         if recorder is not None:
-            records = (*records[:2], _write(records[2], recorder.features(obs), t))
-            action = recorder.act(_read(records[2], t), u)
+            records = (*records[:2], *_written(records[2:], recorder.features(obs), t))
+            action = recorder.act(tuple(_read(r, t) for r in records[2:]), u)
         else:
             action = policy(obs, u)
         check_actions(action, obs, discrete)
@@ -277,17 +280,18 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
                          jnp.zeros(features.shape[1:], features.dtype),
                          jnp.zeros(features.shape[1:], bool))
         return _written(records, frozen if recorder is None
-                        else (*frozen, recorder.features(obs)), t)
+                        else (*frozen, *recorder.features(obs)), t)
 
     features = init_state.to_array(axis=0)
     carry = jnp.concatenate([features, jnp.zeros((1, *features.shape[1:]), features.dtype)])
     # Every step writes its record in place, field first: `[K, T, E, ...]` and `[3, T, E, ...]`.
     # The chunks after every episode ended are not simulated: their steps are written masked.
-    rows = [jax.eval_shape(module.observe, init_state).shape[-1], 3]
+    steps = num_chunks * chunk
+    shapes = [(n, steps, *features.shape[1:])
+              for n in (jax.eval_shape(module.observe, init_state).shape[-1], 3)]
     if recorder is not None:
-        rows.append(jax.eval_shape(lambda s: recorder.features(module.observe(s)),
-                                   init_state).shape[0])
-    shapes = [(n, num_chunks * chunk, *features.shape[1:]) for n in rows]
+        shapes += [(leaf.shape[0], steps, *leaf.shape[1:]) for leaf in jax.eval_shape(
+            lambda s: recorder.features(module.observe(s)), init_state)]
     if records is None:
         records = tuple(jnp.zeros(shape, features.dtype) for shape in shapes)
     elif (not isinstance(records, tuple) or [np.shape(r) for r in records] != shapes
@@ -311,7 +315,7 @@ def rollout(key: PRNGKey, policy: Policy, env_params: Any, num_episodes: int,
         returns, alive_steps = sums.invariant_sum(outcome[1], 0), _over_time(outcome, 2)
     invalid = jnp.any(alive & outside_actions(action, module), axis=(0, 1))
     return Episodes(_transitions((records[0], records[1]), discrete), returns, alive_steps,
-                    invalid, records[2] if recorder is not None else None, written)
+                    invalid, records[2:] if recorder is not None else None, written)
 
 
 def _over_time(records: jax.Array, rows: int | slice) -> jax.Array:

@@ -47,7 +47,7 @@ _Value = tuple[Any, bool]
 # parameters, runs) -> the output with its run axis, or None where the rule does not apply.
 _Rule = Callable[[list[_Value], dict[str, Any], int], Array | None]
 
-_ELEMENTWISE = frozenset("""
+ELEMENTWISE = frozenset("""
     abs acos acosh add add_any and asin asinh atan atan2 atanh cbrt ceil clamp convert_element_type
     copy copy_p cos cosh digamma div eq erf erf_inv erfc exp exp2 expm1 floor ge gt igamma imag
     integer_pow is_finite le lgamma log log1p logistic lt max min mul ne neg nextafter not or pow
@@ -185,7 +185,7 @@ def _apply(eqn: core.JaxprEqn, ins: list[_Value], runs: int | None) -> list[_Val
     out = None if rule is None else rule(ins, params, runs)
     if out is not None:
         return [(out, True)]
-    if name in _ELEMENTWISE:
+    if name in ELEMENTWISE:
         shape = eqn.outvars[0].aval.shape  # type: ignore[attr-defined]  # (a ShapedArray's)
         return _bound(eqn, [_to_shape(v, b, shape, runs) for v, b in ins], batched=True)
     if name in _ALONG_AXES:

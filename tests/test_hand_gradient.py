@@ -173,7 +173,7 @@ def test_hidden_activations_a_rollout_records_give_the_gradient(hidden):
     recorded = rollout.rollout(keys, policies.HiddenRecordingPolicy(network, policy_params),
                                config.env_params, config.episodes, config.max_steps)
     chex.assert_trees_all_equal(recorded.transitions, transitions)
-    features = recorded.policy_features
+    (features,) = recorded.policy_features
     assert features.shape == (sum(hidden), 30, 10, 4)
     computed = policies.forward_layers(policy_params, transitions.obs, "elu")[1][1:]
     chex.assert_trees_all_close(policies.hidden_layers(features, network), computed,
@@ -201,5 +201,5 @@ def test_hidden_activations_a_rollout_records_give_the_gradient(hidden):
     chex.assert_trees_all_close(
         jax.tree.map(lambda leaf: leaf[..., 0], compiled(
             jax.tree.map(lambda leaf: leaf[..., None], params), mine, weights,
-            alone.policy_features[..., None])),
+            alone.policy_features[0][..., None])),
         expected, rtol=1e-5, atol=1e-7)

@@ -13,7 +13,7 @@ PACKAGE = pathlib.Path(jaxpg.__file__).parent
 SHARED = {"types", "validation", "rng", "sums", "fastmath"}
 LAYERS = {
     "envs": {"envs", "_register_ids"},  # every module of jaxpg/envs, and the ids' registration
-    "core": {"distributions", "policies", "losses", "returns", "rollout", "runwise",
+    "core": {"distributions", "policies", "losses", "returns", "rollout", "runwise", "replay",
              "hand_gradient", "iteration", "train_config"},
     "host": {"reinforce", "atomic_files", "safe_read", "executables", "programs", "schedule",
              "budget", "progress", "sweeps", "xla_options", "checkpoint"},

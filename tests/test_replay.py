@@ -1,0 +1,104 @@
+"""replay: the rollout records what a module's gradient reads, and the gradient from those records
+equals JAX's own."""
+
+import dataclasses
+
+import chex
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import pytest
+
+from jaxpg import TrainConfig, iteration, policies, replay
+
+
+class MLP(nn.Module):
+    """Hidden layers of `activation`, then `outputs` logits."""
+
+    hidden: tuple[int, ...] = (32, 32)
+    activation: str = "tanh"
+    outputs: int = 2
+
+    @nn.compact
+    def __call__(self, obs):
+        for size in self.hidden:
+            obs = getattr(nn, self.activation)(nn.Dense(size)(obs))
+        return nn.Dense(self.outputs)(obs)
+
+
+class Centred(nn.Module):
+    """A module that mixes observations: each is centred on the batch's mean."""
+
+    @nn.compact
+    def __call__(self, obs):
+        return nn.Dense(2)(obs - obs.mean(axis=tuple(range(obs.ndim - 1))))
+
+
+MODULES = [MLP(), MLP((16,), "relu"), MLP((8, 8), "gelu"), policies.GaussianNetwork((8,)),
+           policies.PolicyNetwork((5,))]
+
+
+def _params(module):
+    return module.init(jax.random.PRNGKey(0), jnp.zeros(4))
+
+
+def test_a_tanh_mlp_records_its_output_and_each_hidden_layer_only():
+    module = MLP()
+    plan = replay.plan(module.apply, _params(module), jnp.zeros((200, 10, 4)))
+    # 1 - tanh(x), which the derivative also reads, is computed again from tanh(x).
+    assert plan.rows == ((2,), (32,), (32,))
+
+
+@pytest.mark.parametrize("module", MODULES, ids=lambda m: f"{type(m).__name__}")
+def test_the_replayed_gradient_equals_jaxs_own(module):
+    params = _params(module)
+    obs = jax.random.normal(jax.random.PRNGKey(1), (20, 10, 4))
+    plan = replay.plan(module.apply, params, obs)
+    assert replay.same_layout(plan, replay.plan(module.apply, params, obs[0]))
+    recorded = jax.jit(lambda p, o: replay.record(plan, p, o))(params, obs)
+    replayed = replay.replayed(plan, module.apply)
+    weights = jax.random.normal(jax.random.PRNGKey(2),
+                                jax.eval_shape(module.apply, params, obs).shape)
+
+    def loss(apply):
+        return jax.jit(jax.value_and_grad(lambda p: jnp.sum(apply(p) * weights)))(params)
+
+    chex.assert_trees_all_close(loss(lambda p: replayed(p, obs, recorded)),
+                                loss(lambda p: module.apply(p, obs)), rtol=1e-5, atol=1e-5)
+    chex.assert_trees_all_close(replay.output(plan, recorded), module.apply(params, obs),
+                                rtol=1e-6, atol=1e-6)
+
+
+def test_a_module_that_mixes_observations_is_not_replayed():
+    obs = jnp.zeros((200, 10, 4))
+    assert replay.plan(Centred().apply, _params(Centred()), obs) is None
+    config = TrainConfig(policy=Centred(), iterations=2, episodes=3, max_steps=20)
+    assert iteration.replay_plan(config, (3,)) is None
+
+
+@pytest.mark.parametrize("changes, replays", [
+    ({"policy": MLP()}, True),
+    ({"policy": MLP(), "loss": "baseline", "entropy_coef": 0.01}, True),
+    ({"policy": MLP(), "loss": "ppo"}, True),  # one update: the policy that played is stepped
+    ({"policy": MLP(), "loss": "ppo", "epochs": 2}, False),
+    ({}, False),  # the fast path records its own
+])
+def test_the_gradient_replays_where_one_update_steps_the_policy_that_played(changes, replays):
+    config = TrainConfig(iterations=2, episodes=4, max_steps=20, **changes)
+    assert (iteration.replay_plan(config, (4,)) is not None) == replays
+
+
+def test_training_with_the_rollouts_records_equals_training_without():
+    config = TrainConfig(policy=MLP(), iterations=1, episodes=4, max_steps=30)
+    state = iteration.init_runs(config, jax.random.split(jax.random.PRNGKey(3), 3),
+                                jax.tree.map(lambda leaf: jnp.full(3, leaf),
+                                             config.hyperparams.per_run()))
+    hyper = jax.tree.map(lambda leaf: jnp.full(3, leaf), config.hyperparams.per_run())
+    episodes, _, keys = iteration._play(config, state, hyper, None)
+    assert episodes.policy_features is not None
+    learned = jax.jit(lambda e: iteration._learn(config, state, e, hyper, keys))
+    chex.assert_trees_all_close(learned(episodes),
+                                learned(episodes._replace(policy_features=None)),
+                                rtol=1e-5, atol=1e-6)
+    again = dataclasses.replace(config, policy=MLP())
+    assert iteration.replay_plan(again, (4,)) is iteration.replay_plan(config, (4,))
