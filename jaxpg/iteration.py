@@ -226,7 +226,8 @@ def iterate(config: TrainConfig, train_state: TrainState, hyperparams: Hyperpara
     new_params, opt_state, loss, grad_norm, extra = learn(
         config, train_state, episodes, hyperparams, key_minibatches)
     metrics = Metrics(
-        mean_return=episodes.returns.mean(axis=0),
+        # Summed in a fixed order: a continuous task's returns are not whole numbers.
+        mean_return=sums.invariant_sum(episodes.returns, 0) / episodes.returns.shape[0],
         min_return=episodes.returns.min(axis=0),
         max_return=episodes.returns.max(axis=0),
         mean_length=episodes.lengths.mean(axis=0),
@@ -269,6 +270,7 @@ def _play(config: TrainConfig, train_state: TrainState, hyperparams: Hyperparams
     # Runs side by side record the fast path's hidden activations for its gradient; a run alone
     # computes them again there: under XLA's own setting (not the command's), its rollout rounds
     # them otherwise than the gradient, and than the same run beside others (docs/performance.md).
+    # A module's pass is recorded for its gradient alone and side by side alike (`replay_plan`).
     episodes = rollout.rollout(
         key_rollout[0] if alone else key_rollout, _policy(config, params, alone, record=True),
         env_params, config.episodes, config.max_steps,
@@ -373,10 +375,10 @@ def _policy(config: TrainConfig, params: Params, alone: bool, record: bool = Fal
             return policies.HiddenRecordingPolicy(cast(policies.PolicyNetwork, network),
                                                   network_params)
         return policies.network_policy(network, network_params)
-    plan = record and replay_plan(config, (rollout.played_episodes(
-        config.episodes, rollout.LANES if alone else 1),))
-    if plan:
-        return replay.ReplayPolicy(plan, network, params["policy"], runs=not alone,
+    plan = replay_plan(config, (rollout.played_episodes(
+        config.episodes, rollout.LANES if alone else 1),)) if record else None
+    if plan is not None:
+        return replay.ReplayPolicy(plan, params["policy"], runs=not alone,
                                    num_actions=config.num_actions)
     return policies.network_policy(network, params["policy"], runs=not alone,
                                    num_actions=config.num_actions)
@@ -384,26 +386,28 @@ def _policy(config: TrainConfig, params: Params, alone: bool, record: bool = Fal
 
 @functools.lru_cache(maxsize=64)
 def replay_plan(config: TrainConfig, batch: tuple[int, ...]) -> replay.Plan | None:
-    """The `replay.Plan` of the policy module's pass over observations `[*batch, K]`, where the
-    gradient replays the rollout's: off the fast path, with one update on every episode, and a
-    module whose pass records the same values for one step `[E]` as for every step `[T, E]`;
-    else None."""
+    """The `replay.Plan` of the policy module's pass over observations `[*batch, K]`: a step of a
+    rollout `[E']` or every step of the episodes `[T, E]`. None where the gradient does not
+    replay the rollout's pass: on the fast path, with more than one update an iteration, or where
+    a plan fails (`replay.plan`) or records otherwise for any of the shapes a run plays and
+    learns on (a step alone and beside other runs, and `[T, E]`), which is decided for all of
+    them together."""
     if config.hand_gradient or config.updates != 1:
         return None
     obs_size = config.env_module.OBS_SIZE
     params = jax.eval_shape(lambda key: policies.init_network(key, config.network, obs_size),
                             jax.ShapeDtypeStruct((2,), jnp.uint32))
     floats = jnp.result_type(float)
-
-    def planned(batch: tuple[int, ...]) -> replay.Plan | None:
-        """The plan for observations `[*batch, K]`."""
-        return replay.plan(config.network.apply, params,
-                           jax.ShapeDtypeStruct((*batch, obs_size), floats))
-
-    step, every = planned(batch[-1:]), planned((config.max_steps, config.episodes))
-    if step is None or every is None or not replay.same_layout(step, every):
+    shapes: set[tuple[int, ...]] = {batch, (config.max_steps, config.episodes)}
+    shapes |= {(rollout.played_episodes(config.episodes, lanes),) for lanes in (1, rollout.LANES)}
+    plans = {shape: replay.plan(config.network.apply, params,
+                                jax.ShapeDtypeStruct((*shape, obs_size), floats))
+             for shape in shapes}
+    every = plans[config.max_steps, config.episodes]
+    if any(p is None or every is None or not replay.same_layout(p, every)
+           for p in plans.values()):
         return None
-    return step if len(batch) == 1 else every
+    return plans[batch]
 
 
 def _learn_by_hand(
@@ -504,7 +508,7 @@ def learn_run(
     def total(params: dict[str, Params], batch: losses.Batch) -> tuple[Array, dict[str, Array]]:
         """The loss plus the entropy bonus, and the metrics."""
         apply_fn = _once_per_input(distribution if played is None else _replaying(
-            config, plan, params["policy"], batch.obs, played))
+            distribution, config.num_actions, plan, params["policy"], batch.obs, played))
         loss, metrics = loss_fn(params if critic else params["policy"], apply_fn, batch, hyper)
         if not config.entropy_coef:  # no run has a bonus (`programs.compiled_program`)
             return loss, metrics
@@ -576,18 +580,18 @@ def minibatches(config: TrainConfig, batch: losses.Batch, key: PRNGKey) -> losse
     return jax.tree.map(split, batch)
 
 
-def _replaying(config: TrainConfig, plan: replay.Plan, policy_params: Params, obs: Array,
-               played: tuple[Array, ...]) -> losses.ApplyFn:
+def _replaying(distribution: losses.ApplyFn, num_actions: int | None, plan: replay.Plan,
+               policy_params: Params, obs: Array, played: tuple[Array, ...]) -> losses.ApplyFn:
     """The loss's `apply_fn`: on `policy_params` and `obs`, the pass the rollout recorded in
-    `played` (`replay.replayed`); on any other arguments, the module's own."""
-    replayed = replay.replayed(plan, config.network.apply)
+    `played` (`replay.replayed`); on any other arguments, `distribution`, the module's own."""
+    replayed = replay.replayed(plan)
 
     def apply(params: Params, observations: Array) -> Any:
         """The action distribution of `params` on `observations`."""
         if params is policy_params and observations is obs:
             return distributions.from_output(replayed(params, obs, played), obs.shape,
-                                             config.num_actions)
-        return policies.distribution(config.network, params, observations, config.num_actions)
+                                             num_actions)
+        return distribution(params, observations)
 
     return apply
 

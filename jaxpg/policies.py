@@ -355,13 +355,27 @@ class NetworkPolicy:
             dist = forward(self.policy_params, obs, self.network.activation)
         else:
             # Any other module's sums in a fixed order (`runwise`), alone as beside other runs,
-            # so that a run acts alike in both; its output's run axis moved before the actions'.
-            run_dist = runwise.runwise(functools.partial(
-                distribution, self.network, num_actions=self.num_actions), batched=self.runs)
-            dist = run_dist(self.policy_params, jnp.moveaxis(obs, -2, -1) if self.runs else obs)
-            if self.runs:
-                dist = jax.tree.map(lambda leaf: jnp.moveaxis(leaf, -1, u.ndim - 1), dist)
+            # so that a run acts alike in both.
+            dist = runs_like_actions(per_run(functools.partial(
+                distribution, self.network, num_actions=self.num_actions), self.runs,
+                self.policy_params, obs), u, self.runs)
         return distributions.mode(dist) if self.greedy else distributions.sample(dist, u)
+
+
+def per_run(fn: Callable[[Params, Observation], Any], runs: bool, params: Params,
+            obs: Observation) -> Any:
+    """`fn(params, obs)` of one run's parameters and observations `[E, K]`, computed by `runwise`;
+    with `runs`, for R runs' parameters (a trailing run axis) and observations `[E, R, K]`: the
+    outputs with the run axis last."""
+    return runwise.runwise(fn, batched=runs)(params, jnp.moveaxis(obs, -2, -1) if runs else obs)
+
+
+def runs_like_actions(dist: Any, u: jax.Array, runs: bool) -> Any:
+    """An action distribution of `per_run` with its run axis (where `runs`) where the actions and
+    the uniforms `u` `[E, R]` have it, before the distribution's own axes."""
+    if not runs:
+        return dist
+    return jax.tree.map(lambda leaf: jnp.moveaxis(leaf, -1, u.ndim - 1), dist)
 
 
 @struct.dataclass
@@ -380,8 +394,8 @@ class HiddenRecordingPolicy:
     policy_params: dict
 
     def features(self, obs: Observation) -> tuple[jax.Array]:
-        """The hidden layers' activations, stacked `[sum(hidden), E]` (`[..., E, R]`), for
-        observations `[E, K]` (`[E, R, K]`)."""
+        """The hidden layers' activations, stacked as one feature `[sum(hidden), E]`
+        (`[..., E, R]`), for observations `[E, K]` (`[E, R, K]`)."""
         return (jnp.concatenate(
             forward_layers(self.policy_params, obs, self.network.activation)[1][1:]),)
 

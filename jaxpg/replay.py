@@ -16,13 +16,12 @@ alone (`rowwise`): the rollout passes E observations at a time, the gradient all
 
 from typing import Any, NamedTuple
 
-import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from flax import struct
 from jax.extend import core
 
-from jaxpg import distributions, runwise
+from jaxpg import distributions, policies, runwise
 from jaxpg.runwise import ELEMENTWISE
 from jaxpg.types import Action, Array, Observation, Params
 
@@ -30,18 +29,19 @@ from jaxpg.types import Action, Array, Observation, Params
 # arithmetic, and moving entries about.
 _CHEAP = ELEMENTWISE | {
     "broadcast_in_dim", "reshape", "squeeze", "expand_dims", "transpose", "slice",
-    "concatenate", "convert_element_type"}
+    "concatenate", "stop_gradient"}
 
 
 class Plan(NamedTuple):
     """What a module's pass records, for observations of one batch shape.
 
     Attributes:
-      jaxpr: `(params leaves, obs) -> (*the vjp's residuals, *the output's leaves)`.
+      jaxpr: `(params leaves, obs) -> (*the vjp's residuals, *the output's leaves)`, the vjp
+        with respect to the parameters.
       residuals: the tree of `jax.vjp`'s function, whose leaves are the first outputs.
       output: the tree of the module's output.
       recorded: the jaxpr's variables recorded, in order (the output's first).
-      rows: each recorded variable's size per observation (its shape after the batch axes).
+      rows: each recorded variable's shape per observation (after the batch axes).
     """
 
     jaxpr: core.ClosedJaxpr
@@ -55,13 +55,14 @@ def plan(apply: Any, params: Params, obs: Any) -> Plan | None:
     """The `Plan` of `apply(params, obs)`, for `obs` `[*batch, K]` (arrays or shapes).
 
     Returns:
-      The plan; None where the output is not computed from the observations, or a recorded value
-      does not lead with the batch axes (a module that mixes observations) or is neither a float
-      nor a bool (a ReLU's mask).
+      The plan; None where the output is not computed from the observations, the module mixes
+      observations (`rowwise`), or a recorded value does not lead with the batch axes or is
+      neither a float nor a bool (a bool, as a ReLU's mask, is recorded as 0 or 1).
     """
     batch = tuple(obs.shape[:-1])
     closed, (pullback, out) = jax.make_jaxpr(
-        lambda params, obs: jax.vjp(apply, params, obs)[::-1], return_shape=True)(params, obs)
+        lambda params, obs: jax.vjp(lambda p: apply(p, obs), params)[::-1],
+        return_shape=True)(params, obs)
     jaxpr = closed.jaxpr
     num_residuals = len(jax.tree.leaves(pullback))
     residual_vars = {v for v in jaxpr.outvars[:num_residuals] if isinstance(v, core.Var)}
@@ -99,56 +100,61 @@ def plan(apply: Any, params: Params, obs: Any) -> Plan | None:
                 tuple(recorded), tuple(rows))
 
 
-def rowwise(jaxpr: core.Jaxpr, batch: int, varying: Any = None) -> bool:
+def rowwise(jaxpr: core.Jaxpr, batch_axes: int, varying: Any = None) -> bool:
     """Whether `jaxpr` computes each observation's values from that observation alone, as the
     rollout (E observations at a time) and the gradient (all T x E) each assume of the other.
 
-    Its last input is the observations (or the inputs in `varying`), their first `batch` axes the
-    batch. Every value computed
-    from them must keep those axes first and untouched: arithmetic, products that contract
-    other axes against values not computed from the observations, reductions, slices and
-    reshapes of the other axes, calls whose bodies do so. Anything else (a mean over the batch,
-    an operation this does not know) counts as mixing observations.
+    Its last input is the observations (or the inputs in `varying`), their first `batch_axes`
+    axes the batch. Every value computed from them must keep those axes first and untouched:
+    arithmetic, products that contract other axes against values not computed from the
+    observations, reductions, slices and reshapes of the other axes, calls whose bodies do so.
+    Anything else (a mean over the batch, an operation this does not know) counts as mixing
+    observations.
     """
     # The values computed from the observations, batch axes first.
     intact = {jaxpr.invars[-1]} if varying is None else set(varying)
+    lead = tuple(range(batch_axes))
+
+    def after(axes: Any) -> bool:
+        """Whether every axis of `axes` comes after the batch axes."""
+        return all(axis >= batch_axes for axis in axes)
 
     def keeps(eqn: core.JaxprEqn) -> bool:
         """Whether the equation keeps the batch axes first and untouched."""
         name, params = eqn.primitive.name, eqn.params
-        varying = [i for i, v in enumerate(eqn.invars) if isinstance(v, core.Var) and v in intact]
-        lead = tuple(range(batch))
-        if name in ELEMENTWISE or name in ("concatenate", "stack", "select_n"):
-            return params.get("dimension", params.get("axis", batch)) >= batch
+        moving = [i for i, v in enumerate(eqn.invars) if isinstance(v, core.Var) and v in intact]
+        if name in ELEMENTWISE or name in ("concatenate", "stack", "stop_gradient"):
+            return after([params.get("dimension", params.get("axis", batch_axes))])
         if name == "dot_general":
             (contract, _), (batched, _) = params["dimension_numbers"]
-            return varying == [0] and not batched and min(contract) >= batch
+            return moving == [0] and not batched and after(contract)
         if name in ("jit", "pjit", "closed_call", "core_call", "custom_jvp_call",
                     "custom_vjp_call"):
             inner = params["jaxpr"] if "jaxpr" in params else params["call_jaxpr"]
             inner = getattr(inner, "jaxpr", inner)
-            return rowwise(inner, batch, [inner.invars[i] for i in varying])
-        if len(varying) != 1:
+            return rowwise(inner, batch_axes, [inner.invars[i] for i in moving])
+        if len(moving) != 1:
             return False
-        shape = eqn.invars[varying[0]].aval.shape  # type: ignore[attr-defined]
+        shape = eqn.invars[moving[0]].aval.shape  # type: ignore[attr-defined]
         if name in ("reduce_sum", "reduce_max", "reduce_min", "reduce_prod", "argmax", "argmin",
                     "reduce_and", "reduce_or"):
-            return min(params["axes"]) >= batch
+            return after(params["axes"])
         if name in ("cumsum", "cumprod", "cummax", "cummin", "cumlogsumexp"):
-            return params["axis"] >= batch
+            return after([params["axis"]])
         if name == "broadcast_in_dim":
-            return tuple(params["broadcast_dimensions"][:batch]) == lead
+            return tuple(params["broadcast_dimensions"][:batch_axes]) == lead
         if name == "reshape":
-            return tuple(params["new_sizes"][:batch]) == shape[:batch]
+            return tuple(params["new_sizes"][:batch_axes]) == shape[:batch_axes]
         if name == "squeeze":
-            return min(params["dimensions"]) >= batch
+            return after(params["dimensions"])
         if name == "transpose":
-            return tuple(params["permutation"][:batch]) == lead
+            return tuple(params["permutation"][:batch_axes]) == lead
         if name == "slice":
-            return (tuple(params["start_indices"][:batch]) == (0,) * batch
-                    and tuple(params["limit_indices"][:batch]) == shape[:batch]
-                    and (params["strides"] is None or set(params["strides"][:batch]) <= {1}))
-        return name in ("convert_element_type", "reduce_precision", "copy", "copy_p")
+            return (tuple(params["start_indices"][:batch_axes]) == (0,) * batch_axes
+                    and tuple(params["limit_indices"][:batch_axes]) == shape[:batch_axes]
+                    and (params["strides"] is None
+                         or set(params["strides"][:batch_axes]) <= {1}))
+        return False
 
     for eqn in jaxpr.eqns:
         if any(v in intact for v in eqn.invars if isinstance(v, core.Var)):
@@ -185,7 +191,7 @@ def output(p: Plan, recorded: tuple[Array, ...]) -> Any:
     return jax.tree.unflatten(p.output, outs)
 
 
-def replayed(p: Plan, apply: Any) -> Any:
+def replayed(p: Plan) -> Any:
     """`apply(params, obs, recorded)`: the module's output as `record` recorded it over `obs`,
     and the derivative of `apply(params, obs)` with respect to `params` from the recorded
     residuals. `obs` and `recorded` take no gradient."""
@@ -254,15 +260,13 @@ class ReplayPolicy:
 
     Attributes:
       plan: static: the `Plan` of the module's pass for one step's observations `[E, K]`.
-      network: static: the policy module.
-      policy_params: its parameters, with a trailing run axis where `runs`.
+      policy_params: the module's parameters, with a trailing run axis where `runs`.
       runs: static: whether the parameters carry a trailing run axis `[..., R]` (observations
         `[E, R, K]`, uniforms `[E, R]`).
       num_actions: static: the environment's discrete actions; None for a continuous one.
     """
 
     plan: Plan = struct.field(pytree_node=False)
-    network: nn.Module = struct.field(pytree_node=False)
     policy_params: dict
     runs: bool = struct.field(pytree_node=False, default=False)
     num_actions: int | None = struct.field(pytree_node=False, default=2)
@@ -271,9 +275,8 @@ class ReplayPolicy:
         """The recorded values, each `[1, E, n]` (`[1, E, n, R]`), of observations `[E, K]`
         (`[E, R, K]`): each a field of the rollout's records, which then hold it `[1, T, E, n]`,
         laid out as the gradient reads it."""
-        recorded = runwise.runwise(lambda params, obs: record(self.plan, params, obs),
-                                   batched=self.runs)
-        values = recorded(self.policy_params, jnp.moveaxis(obs, -2, -1) if self.runs else obs)
+        values = policies.per_run(lambda params, obs: record(self.plan, params, obs), self.runs,
+                                  self.policy_params, obs)
         return tuple(value[None] for value in values)
 
     def act(self, features: tuple[Array, ...], u: Array) -> Action:
@@ -284,9 +287,7 @@ class ReplayPolicy:
                                              (*recorded[0].shape[:-1], 0), self.num_actions)
 
         played = runwise.runwise(dist, batched=self.runs)(*(f[0] for f in features))
-        if self.runs:  # the run axis before the distribution's own
-            played = jax.tree.map(lambda leaf: jnp.moveaxis(leaf, -1, u.ndim - 1), played)
-        return distributions.sample(played, u)
+        return distributions.sample(policies.runs_like_actions(played, u, self.runs), u)
 
     def __call__(self, obs: Observation, u: Array) -> Action:
         """Actions `[E]` (`[E, R]`) for observations `[E, K]` (`[E, R, K]`) and uniforms `u`."""

@@ -49,8 +49,8 @@ class RecordingPolicy(Protocol):
     """
 
     def features(self, obs: Observation) -> tuple[jax.Array, ...]:
-        """Features, each `[F, E, ...]` (`[F, E, R, ...]`), of observations `[E, K]`
-        (`[E, R, K]`): each recorded `[F, T, E, ...]`."""
+        """Features, each `[F, E, ...]` of observations `[E, K]` (`[E, R, K]`, the run axis among
+        the feature's trailing axes): each recorded `[F, T, E, ...]`."""
         ...
 
     def act(self, features: tuple[jax.Array, ...], u: jax.Array) -> Action:

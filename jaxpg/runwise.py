@@ -377,9 +377,9 @@ def _merged(x_in: _Value, y_in: _Value, dimension_numbers: Any) -> tuple[Array, 
     """
     (x, x_batched), (y, y_batched) = x_in, y_in
     (x_contract, y_contract), (x_batch, y_batch) = dimension_numbers
-    consecutive = all(list(axes) == list(range(axes[0], axes[0] + len(axes)))
-                      for axes in (x_contract, y_contract))
-    if len(x_contract) < 2 or not consecutive or np.shape(x)[x_contract[0]] <= LOOPED:
+    if len(x_contract) < 2 or np.shape(x)[x_contract[0]] <= LOOPED or not all(
+            list(axes) == list(range(axes[0], axes[0] + len(axes)))
+            for axes in (x_contract, y_contract)):
         return x, y, dimension_numbers
     x_shape, y_shape = np.shape(x)[:np.ndim(x) - x_batched], np.shape(y)[:np.ndim(y) - y_batched]
     outputs = math.prod(size for a, size in enumerate(x_shape) if a not in x_contract) * math.prod(

@@ -7,9 +7,10 @@ import chex
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
-from jaxpg import TrainConfig, iteration, policies, replay
+from jaxpg import TrainConfig, iteration, policies, replay, train
 
 
 class MLP(nn.Module):
@@ -34,8 +35,37 @@ class Centred(nn.Module):
         return nn.Dense(2)(obs - obs.mean(axis=tuple(range(obs.ndim - 1))))
 
 
+class LogSoftmaxHead(nn.Module):
+    """Log-probabilities of two actions, as a categorical head is often written."""
+
+    @nn.compact
+    def __call__(self, obs):
+        return jax.nn.log_softmax(nn.Dense(2)(nn.tanh(nn.Dense(8)(obs))))
+
+
+class Outer(nn.Module):
+    """A product that contracts no axis: each hidden unit times each of three weights."""
+
+    @nn.compact
+    def __call__(self, obs):
+        hidden = nn.tanh(nn.Dense(4)(obs))
+        outer = jnp.einsum("...i,j->...ij", hidden, self.param("w", nn.initializers.normal(), (3,)))
+        return nn.Dense(2)(outer.reshape(*outer.shape[:-2], 12))
+
+
+class HostPreprocessed(nn.Module):
+    """Observations preprocessed on the host: no derivative with respect to them."""
+
+    @nn.compact
+    def __call__(self, obs):
+        obs = jax.pure_callback(lambda x: np.tanh(x).astype(x.dtype),
+                                jax.ShapeDtypeStruct(obs.shape, obs.dtype), obs,
+                                vmap_method="expand_dims")
+        return nn.Dense(1)(nn.tanh(nn.Dense(8)(obs)))
+
+
 MODULES = [MLP(), MLP((16,), "relu"), MLP((8, 8), "gelu"), policies.GaussianNetwork((8,)),
-           policies.PolicyNetwork((5,))]
+           policies.PolicyNetwork((5,)), LogSoftmaxHead(), Outer()]
 
 
 def _params(module):
@@ -56,7 +86,7 @@ def test_the_replayed_gradient_equals_jaxs_own(module):
     plan = replay.plan(module.apply, params, obs)
     assert replay.same_layout(plan, replay.plan(module.apply, params, obs[0]))
     recorded = jax.jit(lambda p, o: replay.record(plan, p, o))(params, obs)
-    replayed = replay.replayed(plan, module.apply)
+    replayed = replay.replayed(plan)
     weights = jax.random.normal(jax.random.PRNGKey(2),
                                 jax.eval_shape(module.apply, params, obs).shape)
 
@@ -67,6 +97,12 @@ def test_the_replayed_gradient_equals_jaxs_own(module):
                                 loss(lambda p: module.apply(p, obs)), rtol=1e-5, atol=1e-5)
     chex.assert_trees_all_close(replay.output(plan, recorded), module.apply(params, obs),
                                 rtol=1e-6, atol=1e-6)
+
+
+def test_a_module_without_a_derivative_in_its_observations_trains():
+    """The pass is differentiated with respect to the parameters only, as the loss is."""
+    config = TrainConfig(policy=HostPreprocessed(), iterations=2, episodes=2, max_steps=20)
+    assert np.all(np.isfinite(train(config, seed=0, show_progress=False).metrics.grad_norm))
 
 
 def test_a_module_that_mixes_observations_is_not_replayed():
@@ -90,10 +126,8 @@ def test_the_gradient_replays_where_one_update_steps_the_policy_that_played(chan
 
 def test_training_with_the_rollouts_records_equals_training_without():
     config = TrainConfig(policy=MLP(), iterations=1, episodes=4, max_steps=30)
-    state = iteration.init_runs(config, jax.random.split(jax.random.PRNGKey(3), 3),
-                                jax.tree.map(lambda leaf: jnp.full(3, leaf),
-                                             config.hyperparams.per_run()))
     hyper = jax.tree.map(lambda leaf: jnp.full(3, leaf), config.hyperparams.per_run())
+    state = iteration.init_runs(config, jax.random.split(jax.random.PRNGKey(3), 3), hyper)
     episodes, _, keys = iteration._play(config, state, hyper, None)
     assert episodes.policy_features is not None
     learned = jax.jit(lambda e: iteration._learn(config, state, e, hyper, keys))
