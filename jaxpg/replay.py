@@ -246,8 +246,12 @@ def _evaluate(p: Plan, params: Params, obs: Observation, known: dict[core.Var, A
     env.update(zip(jaxpr.invars, [*jax.tree.leaves(params), obs]))
     env.update(known)
     for eqn in reversed(eqns):
-        outs = eqn.primitive.bind(*(_read(env, v) for v in eqn.invars),
-                                  **eqn.primitive.get_bind_params(eqn.params))
+        bind_params = eqn.primitive.get_bind_params(eqn.params)
+        # Older JAX (0.8) gives a call's functions too: (functions, parameters).
+        functions, bind_params = (bind_params if isinstance(bind_params, tuple)
+                                  else ((), bind_params))
+        outs = eqn.primitive.bind(*functions, *(_read(env, v) for v in eqn.invars),
+                                  **bind_params)
         env.update(zip(eqn.outvars, outs if eqn.primitive.multiple_results else [outs]))
     return env
 
