@@ -60,9 +60,12 @@ def plan(apply: Any, params: Params, obs: Any) -> Plan | None:
       neither a float nor a bool (a bool, as a ReLU's mask, is recorded as 0 or 1).
     """
     batch = tuple(obs.shape[:-1])
-    closed, (pullback, out) = jax.make_jaxpr(
-        lambda params, obs: jax.vjp(lambda p: apply(p, obs), params)[::-1],
-        return_shape=True)(params, obs)
+    # Traced with `jax.jit`'s functions inline (`jax.nn.swish`, `elu`): their operations are then
+    # the plan's own, and what is cheap among them is computed again rather than recorded.
+    with jax.disable_jit():
+        closed, (pullback, out) = jax.make_jaxpr(
+            lambda params, obs: jax.vjp(lambda p: apply(p, obs), params)[::-1],
+            return_shape=True)(params, obs)
     jaxpr = closed.jaxpr
     num_residuals = len(jax.tree.leaves(pullback))
     residual_vars = {v for v in jaxpr.outvars[:num_residuals] if isinstance(v, core.Var)}

@@ -72,10 +72,13 @@ def _params(module):
     return module.init(jax.random.PRNGKey(0), jnp.zeros(4))
 
 
-def test_a_tanh_mlp_records_its_output_and_each_hidden_layer_only():
-    module = MLP()
+@pytest.mark.parametrize("activation", ["tanh", "swish"])
+def test_an_mlp_records_its_output_and_each_hidden_layer_only(activation):
+    """Two logits and 32 values a layer: what else the derivative reads is computed again from
+    them (1 - tanh(x) from tanh(x); `jax.nn.swish`, a `jax.jit` function traced inline, from its
+    input)."""
+    module = MLP(activation=activation)
     plan = replay.plan(module.apply, _params(module), jnp.zeros((200, 10, 4)))
-    # 1 - tanh(x), which the derivative also reads, is computed again from tanh(x).
     assert plan.rows == ((2,), (32,), (32,))
 
 
