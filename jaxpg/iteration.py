@@ -404,8 +404,8 @@ def replay_plan(config: TrainConfig, batch: tuple[int, ...]) -> replay.Plan | No
                                 jax.ShapeDtypeStruct((*shape, obs_size), floats))
              for shape in shapes}
     every = plans[config.max_steps, config.episodes]
-    if any(p is None or every is None or not replay.same_layout(p, every)
-           for p in plans.values()):
+    if every is None or any(p is None or not replay.same_layout(p, every)
+                            for p in plans.values()):
         return None
     return plans[batch]
 

@@ -25,11 +25,11 @@ from jaxpg import distributions, policies, runwise
 from jaxpg.runwise import ELEMENTWISE
 from jaxpg.types import Action, Array, Observation, Params
 
-# Operations cheap enough to compute again in the gradient rather than record: elementwise
-# arithmetic, and moving entries about.
-_CHEAP = ELEMENTWISE | {
-    "broadcast_in_dim", "reshape", "squeeze", "expand_dims", "transpose", "slice",
-    "concatenate", "stop_gradient"}
+# Operations that move entries about, or pass them on unchanged.
+_MOVES = frozenset({"broadcast_in_dim", "reshape", "squeeze", "transpose", "slice", "concatenate",
+                    "stack", "stop_gradient"})
+# Operations cheap enough to compute again in the gradient rather than record.
+_CHEAP = ELEMENTWISE | _MOVES
 
 
 class Plan(NamedTuple):
