@@ -320,7 +320,10 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     (`_in_order`: chains of `GROUP` multiply-adds that XLA fuses into one kernel each, the chains
     after the first in a loop); where other contracting axes follow a short first one, one chain
     of all its entries (in chains of `GROUP` there, a run alone rounded otherwise than among
-    others). Then they are summed over the other contracting axes by halving. Each entry's
+    others). Then they are summed over the other contracting axes by halving. A long first axis
+    of the first operand, the steps of a gradient's `[T, E, n] x [n, m]`, is computed `TILE`
+    entries at a time, so that each tile's totals stay in cache through its chains; every total
+    adds its terms in the same order. Each entry's
     products are sliced out of the operands before they are laid out as [other contracting,
     batch, free] (plus the run axis) and expanded against the other operand's free axes, so that
     no whole operand is transposed.
@@ -352,15 +355,29 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
         return _typed(products((x, y), None), params)
     entries = np.shape(x)[x_contract[0]]
 
-    def fetch(start: Any, size: int) -> tuple[Array, Array]:
-        """The operands' entries `start` to `start + size` of their first contracting axis."""
-        return (lax.dynamic_slice_in_dim(x, start, size, axis=x_contract[0]),
-                lax.dynamic_slice_in_dim(y, start, size, axis=y_contract[0]))
+    def contracted(x: Array) -> Array:
+        """The products of `x` and `y` summed over the contracting axes."""
+        def fetch(start: Any, size: int) -> tuple[Array, Array]:
+            """The operands' entries `start` to `start + size` of their first contracting axis."""
+            return (lax.dynamic_slice_in_dim(x, start, size, axis=x_contract[0]),
+                    lax.dynamic_slice_in_dim(y, start, size, axis=y_contract[0]))
 
-    # Beside other contracting axes, a short first one is one chain of all its entries.
-    result = _in_order(entries, fetch, products,
-                       entries if contract > 1 and entries <= LOOPED else GROUP)
-    return _typed(_sum(result, tuple(range(contract - 1))), params)
+        # Beside other contracting axes, a short first one is one chain of all its entries.
+        result = _in_order(entries, fetch, products,
+                           entries if contract > 1 and entries <= LOOPED else GROUP)
+        return _sum(result, tuple(range(contract - 1)))
+
+    # A long first axis of `x`, the steps of a gradient's `[T, E, n] x [n, m]`, in tiles: each
+    # tile's total over its chains stays in cache rather than every chain passing over the whole.
+    x_len = np.shape(x)[0]
+    if (entries > GROUP and not x_batch and x_free[:1] == [0] and x_len > LOOPED
+            and x_len % TILE == 0):
+        tiles = lax.map(contracted, lax.reshape(x, (x_len // TILE, TILE, *np.shape(x)[1:])))
+        return _typed(lax.reshape(tiles, (x_len, *tiles.shape[2:])), params)
+    return _typed(contracted(x), params)
+
+
+TILE = 2  # entries of a long first axis of a product's first operand computed at once
 
 
 def _merged(x_in: _Value, y_in: _Value, dimension_numbers: Any) -> tuple[Array, Array, Any]:

@@ -99,16 +99,18 @@ def test_a_run_alone_rounds_as_among_others(runs):
         chex.assert_trees_all_equal(alone, jax.tree.map(lambda leaf: leaf[..., run], together))
 
 
-@pytest.mark.parametrize("features", [5, 20, 64, 100])
-def test_a_wide_product_rounds_alone_as_among_others(features):
+@pytest.mark.parametrize("features, steps", [(5, 100), (20, 100), (64, 100), (100, 100),
+                                             (20, 101)])
+def test_a_wide_product_rounds_alone_as_among_others(features, steps):
     """Matrix products of fewer and more features than one chain of multiply-adds holds
     (`runwise.GROUP`: chains in a loop) and than `runwise.LOOPED`, and their gradients over 100
     steps of 3 episodes (the weights' summed as one axis of steps and episodes where they have
-    more than `LOOPED` entries, from 20 features, else per episode): a run alone rounds as among
-    others, and equals `jax.vmap`'s to rounding."""
+    more than `LOOPED` entries, from 20 features, else per episode; the products computed in tiles
+    of `runwise.TILE` steps, 101 steps whole): a run alone rounds as among others, and equals
+    `jax.vmap`'s to rounding."""
     keys = jax.random.split(jax.random.PRNGKey(2), 2)
     weights = jax.random.normal(keys[0], (features, features, RUNS)) / np.sqrt(features)
-    obs = jax.random.normal(keys[1], (100, 3, features, RUNS))
+    obs = jax.random.normal(keys[1], (steps, 3, features, RUNS))
 
     def loss(weights, obs):
         hidden = jnp.tanh(obs @ weights)
