@@ -15,10 +15,11 @@ reader sees the earlier folder or the new one, never a mix:
 
 A lock (`fcntl.flock` on `.NAME.lock`, beside the folder) keeps a second process from writing the
 same folder while the first trains and writes; the second is refused at once. The lock is
-released when the process ends, so a killed run leaves nothing locked; whatever it left half
-done (`.NAME.staging-*` folders, and the `.staging-*` folders that jaxpg 0.1.0 left inside the
-output folder) is removed by the next run that takes the lock. Once `cancel` is called (Ctrl-C),
-no staging folder takes its output folder's place.
+released when the results are in place, or when the process ends, so a killed run leaves nothing
+locked (a command run in a process that goes on, `cli.run_command`, releases it when it ends);
+whatever it left half done (`.NAME.staging-*` folders, and the `.staging-*` folders that jaxpg
+0.1.0 left inside the output folder) is removed by the next run that takes the lock. Once
+`cancel` is called (Ctrl-C), no staging folder takes its output folder's place.
 
 Every single file jaxpg writes (checkpoints, animations, plots, kept programs) goes through
 `atomic_path`: the content is written to a temporary file in the same directory, flushed to disk,
@@ -204,8 +205,9 @@ _held: dict[pathlib.Path, IO[str]] = {}  # the output folders claimed: real path
 def claim(out: StrPath) -> pathlib.Path:
     """Locks the output directory `out` against other processes, after checking it.
 
-    `out` is checked (`check_out_dir`) and locked until `staged` has replaced it, or this process
-    ends; then what killed runs left there is removed. Claiming a folder this process holds
+    `out` is checked (`check_out_dir`) and locked until `staged` has replaced it, this process
+    ends, or the block of `claims_released` that claimed it ends; then what killed runs left there
+    is removed. Claiming a folder this process holds
     already does nothing more.
 
     Args:
@@ -236,6 +238,19 @@ def claim(out: StrPath) -> pathlib.Path:
     _held[real] = lock
     _recover(real)
     return out
+
+
+@contextlib.contextmanager
+def claims_released() -> Iterator[None]:
+    """Inside the block, output folders may be claimed; when it ends, however it ends, those still
+    held are released: a command that failed after `claim` leaves them to other processes, in a
+    process that goes on."""
+    before = set(_held)
+    try:
+        yield
+    finally:
+        for real in set(_held) - before:
+            _release(real)
 
 
 def _release(real: pathlib.Path) -> None:

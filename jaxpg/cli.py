@@ -947,8 +947,11 @@ def run_command(argv: Sequence[str] | None = None) -> int:
 
 def _execute(args: argparse.Namespace) -> int:
     """Runs the command of `args`: its status, 2 after a one-line error, 130 where interrupted."""
+    from jaxpg import atomic_files
+
     try:
-        return args.handler(args) or 0
+        with atomic_files.claims_released():
+            return args.handler(args) or 0
     except (ValueError, OSError) as error:
         print(f"{PROG} {args.command}: error: {error}", file=sys.stderr)
         return 2

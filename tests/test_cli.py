@@ -18,6 +18,7 @@ from jax.experimental.compilation_cache import compilation_cache
 
 from jaxpg import (
     TrainConfig,
+    atomic_files,
     cartpole,
     checkpoint,
     cli,
@@ -372,6 +373,17 @@ def test_bad_evaluate_input_exits_2_with_one_line_and_writes_nothing(sweep_folde
     lines = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and len(lines) == 1 and word in lines[0], lines
     assert not out.exists()
+
+
+def test_a_command_that_fails_after_claiming_its_folder_releases_it(sweep_folder, tmp_path):
+    """`run_command` in a process that goes on: a command refused once it held its output folder
+    leaves the folder to other processes."""
+    out = tmp_path / "out"
+    assert cli.run_command(["evaluate", "--policy", str(sweep_folder), "--out", str(out),
+                            "--episodes", "0"]) == 2
+    assert (tmp_path / atomic_files.temporary_name("out", "lock")).exists()  # it was claimed
+    with claimed_by_another_process(out):
+        pass
 
 
 _HUGE_BUDGET = "9" * 400 + "T"  # a float of it is infinite
