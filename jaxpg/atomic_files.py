@@ -207,8 +207,7 @@ def claim(out: StrPath) -> pathlib.Path:
 
     `out` is checked (`check_out_dir`) and locked until `staged` has replaced it, this process
     ends, or the block of `claims_released` that claimed it ends; then what killed runs left there
-    is removed. Claiming a folder this process holds
-    already does nothing more.
+    is removed. Claiming a folder this process holds already does nothing more.
 
     Args:
       out: the output directory, existing or not (its parents are created).

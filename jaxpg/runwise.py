@@ -323,10 +323,9 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
     others). Then they are summed over the other contracting axes by halving. A long first axis
     of the first operand, the steps of a gradient's `[T, E, n] x [n, m]`, is computed `TILE`
     entries at a time, so that each tile's totals stay in cache through its chains; every total
-    adds its terms in the same order. Each entry's
-    products are sliced out of the operands before they are laid out as [other contracting,
-    batch, free] (plus the run axis) and expanded against the other operand's free axes, so that
-    no whole operand is transposed.
+    adds its terms in the same order. Each entry's products are sliced out of the operands before
+    they are laid out as [other contracting, batch, free] (plus the run axis) and expanded against
+    the other operand's free axes, so that no whole operand is transposed.
     """
     (x, x_batched), (y, y_batched) = ins
     x, y, ((x_contract, y_contract), (x_batch, y_batch)) = _merged(
