@@ -278,6 +278,7 @@ def _sum(x: Array, axes: Sequence[int]) -> Array:
 
 LOOPED = 64  # an axis summed (or contracted) longer than this: in a loop, `GROUP` entries a step
 GROUP = 8  # the additions chained in one kernel (a longer chain is slower)
+TILE = 2  # entries of a long first axis of a product's first operand computed at once (`_dot`)
 
 
 def _in_order(entries: int, fetch: Callable[[Any, int], Any],
@@ -374,9 +375,6 @@ def _dot(ins: list[_Value], params: dict[str, Any], runs: int | None) -> Array:
         tiles = lax.map(contracted, lax.reshape(x, (x_len // TILE, TILE, *np.shape(x)[1:])))
         return _typed(lax.reshape(tiles, (x_len, *tiles.shape[2:])), params)
     return _typed(contracted(x), params)
-
-
-TILE = 2  # entries of a long first axis of a product's first operand computed at once
 
 
 def _merged(x_in: _Value, y_in: _Value, dimension_numbers: Any) -> tuple[Array, Array, Any]:
